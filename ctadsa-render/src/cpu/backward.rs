@@ -1,0 +1,251 @@
+//! CPU backward pass, Gaussian-major: each Gaussian walks its own footprint in every view and
+//! sums its gradient from the upstream image gradient. No two threads write the same value, and
+//! each Gaussian's sums run in a fixed pixel order, so the result is deterministic.
+//!
+//! Per pixel, with `I` the pixel's term, `g = ∂L/∂I`, `e = μ_z (Δ − β ũ)` the offset from the
+//! centre to the Mahalanobis-closest point of the ray (`β = (Qũ)·Δ / α`), xray-splatting.md §3:
+//! `∂I/∂ρ = I/ρ`, `∂I/∂μ = I Q e`, `∂I/∂Q = −½ I (ũũᵀ/α + e eᵀ)`.
+
+use rayon::prelude::*;
+
+use super::host::HostGaussians;
+use super::math::{Frame, Projected, SQRT_2PI, Sym3, clamp_scales, exp_neg, project, quat_to_mat};
+use crate::view_params::ViewParams;
+
+/// Gradients of a scalar loss with respect to the render inputs (row-major, like the inputs),
+/// plus the densification statistic.
+#[derive(Debug, Clone, Default)]
+pub struct HostGrads {
+    pub means: Vec<f32>,
+    pub scales: Vec<f32>,
+    pub rotations: Vec<f32>,
+    pub densities: Vec<f32>,
+    /// `[N·2]`: per Gaussian, the sum over views of the norm of `∂L/∂(projected centre)` in NDC
+    /// units (pixels × half the image size), and the number of views whose image it touched.
+    pub screen_stats: Vec<f32>,
+}
+
+/// Sums over one view's footprint, in the camera frame.
+#[derive(Debug, Clone, Copy, Default)]
+struct Sums {
+    /// `Σ g I/ρ`.
+    unit: f32,
+    /// `Σ g I e` (mm).
+    e: [f32; 3],
+    /// `Σ g I (ũũᵀ/α + eeᵀ)`, symmetric.
+    m: Sym3,
+}
+
+/// Lanes per inner-loop chunk; the arrays below vectorise.
+const LANES: usize = 8;
+
+#[inline(always)]
+fn row_sums(
+    p: &Projected,
+    vp: &ViewParams,
+    row: i32,
+    c0: i32,
+    c1: i32,
+    grad_row: &[f32],
+    acc: &mut [[f32; LANES]; 10],
+) {
+    let re = p.row_eval(row, vp);
+    let dy = re.dy;
+    let yn = re.yn;
+    let mu_z = p.mu_z;
+    let density = p.amp * (1.0 / SQRT_2PI);
+    let n = (c1 - c0 + 1) as usize;
+    let mut j = 0;
+    while j < n {
+        let mut lane = [[0.0f32; LANES]; 10];
+        for l in 0..LANES {
+            let valid = j + l < n;
+            let g = if valid { grad_row[c0 as usize + j + l] } else { 0.0 };
+            let dx = ((c0 + (j + l) as i32) as f32 - p.u0) * vp.inv_fx;
+            let alpha = re.a0 + dx * (re.a1 + dx * re.a2);
+            let quad = re.n0 + dx * (re.n1 + dx * re.n2);
+            let xn = p.x0 + dx;
+            let r2 = re.r0 + xn * xn;
+            let inv_a = 1.0 / alpha;
+            let unit = SQRT_2PI * (r2 * inv_a).sqrt() * exp_neg(-0.5 * quad * inv_a);
+            let gu = g * unit;
+            let gi = gu * density;
+            // β = (Qũ)·Δ / α, Qũ = g_w + Q Δ.
+            let qu_x = p.g_x + p.q_xx * dx + p.q_xy * dy;
+            let qu_y = p.g_y + p.q_xy * dx + p.q_yy * dy;
+            let beta = (qu_x * dx + qu_y * dy) * inv_a;
+            let ex = mu_z * (dx - beta * xn);
+            let ey = mu_z * (dy - beta * yn);
+            let ez = -mu_z * beta;
+            let gia = gi * inv_a;
+            lane[0][l] = gu;
+            lane[1][l] = gi * ex;
+            lane[2][l] = gi * ey;
+            lane[3][l] = gi * ez;
+            lane[4][l] = gia * xn * xn + gi * ex * ex;
+            lane[5][l] = gia * xn * yn + gi * ex * ey;
+            lane[6][l] = gia * xn + gi * ex * ez;
+            lane[7][l] = gia * yn * yn + gi * ey * ey;
+            lane[8][l] = gia * yn + gi * ey * ez;
+            lane[9][l] = gia + gi * ez * ez;
+        }
+        for (a, l) in acc.iter_mut().zip(lane.iter()) {
+            for k in 0..LANES {
+                a[k] += l[k];
+            }
+        }
+        j += LANES;
+    }
+}
+
+/// Walks the footprint of one projected Gaussian over the upstream gradient `grad` (`H × W`).
+fn footprint_sums(p: &Projected, vp: &ViewParams, grad: &[f32]) -> Sums {
+    let w = vp.width as usize;
+    let mut acc = [[0.0f32; LANES]; 10];
+    for row in p.row_min..=p.row_max {
+        if let Some((c0, c1)) = p.row_span(row, vp, p.col_min, p.col_max) {
+            let grad_row = &grad[row as usize * w..(row as usize + 1) * w];
+            row_sums(p, vp, row, c0, c1, grad_row, &mut acc);
+        }
+    }
+    let s: [f32; 10] = acc.map(|a| a.iter().sum());
+    Sums { unit: s[0], e: [s[1], s[2], s[3]], m: [s[4], s[5], s[6], s[7], s[8], s[9]] }
+}
+
+/// World-frame gradient sums of one Gaussian over all views.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct WorldSums {
+    /// `∂L/∂ρ`.
+    pub density: f32,
+    /// `∂L/∂μ` (world).
+    pub mean: [f32; 3],
+    /// `∂L/∂Q` (world), symmetric.
+    pub precision: Sym3,
+    /// Sum over views of the NDC-scaled projected-centre gradient norm, and the visible-view count.
+    pub stat: f32,
+    pub visible: f32,
+}
+
+/// Adds the view's camera-frame sums to the world-frame sums.
+pub fn accumulate_view(
+    ws: &mut WorldSums,
+    unit: f32,
+    e: [f32; 3],
+    m: Sym3,
+    frame: &Frame,
+    p: &Projected,
+    vp: &ViewParams,
+) {
+    let q = &frame.q;
+    // ∂L/∂μ_c = Q E.
+    let d_mu = [
+        q[0] * e[0] + q[1] * e[1] + q[2] * e[2],
+        q[1] * e[0] + q[3] * e[1] + q[4] * e[2],
+        q[2] * e[0] + q[4] * e[1] + q[5] * e[2],
+    ];
+    let r = &vp.rotation;
+    for (i, dm) in ws.mean.iter_mut().enumerate() {
+        *dm += r[i] * d_mu[0] + r[3 + i] * d_mu[1] + r[6 + i] * d_mu[2];
+    }
+    // ∂L/∂Q_c = −½ M;  ∂L/∂Q_w = Rᵀ (∂L/∂Q_c) R.
+    let full = |a: &Sym3, i: usize, j: usize| {
+        const IDX: [[usize; 3]; 3] = [[0, 1, 2], [1, 3, 4], [2, 4, 5]];
+        a[IDX[i][j]]
+    };
+    let pairs = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)];
+    for (slot, &(i, j)) in ws.precision.iter_mut().zip(pairs.iter()) {
+        let mut v = 0.0;
+        for a in 0..3 {
+            for b in 0..3 {
+                v += r[3 * a + i] * full(&m, a, b) * r[3 * b + j];
+            }
+        }
+        *slot += -0.5 * v;
+    }
+    ws.density += unit;
+    let du = d_mu[0] * p.mu_z * vp.inv_fx * (vp.width as f32 * 0.5);
+    let dv = d_mu[1] * p.mu_z * vp.inv_fy * (vp.height as f32 * 0.5);
+    ws.stat += (du * du + dv * dv).sqrt();
+    ws.visible += 1.0;
+}
+
+/// Chains world-frame `∂L/∂Q` to the (clamped) scales and the (unnormalised) quaternion:
+/// `∂L/∂s_k = −2 s_k⁻³ r_kᵀ G r_k`, `∂L/∂R = 2 G R S⁻²`, then through `R(q̂)` and `q̂ = q/|q|`.
+pub fn chain_precision(scale: [f32; 3], quat: [f32; 4], g: &Sym3) -> ([f32; 3], [f32; 4]) {
+    let (Some((s, inside)), Some((r, qn, norm))) = (clamp_scales(scale), quat_to_mat(quat)) else {
+        return ([0.0; 3], [0.0; 4]);
+    };
+    let gm = [g[0], g[1], g[2], g[1], g[3], g[4], g[2], g[4], g[5]];
+    // G R (row-major), column k of R is r[k], r[3+k], r[6+k].
+    let mut gr = [0.0f32; 9];
+    for i in 0..3 {
+        for k in 0..3 {
+            gr[3 * i + k] = gm[3 * i] * r[k] + gm[3 * i + 1] * r[3 + k] + gm[3 * i + 2] * r[6 + k];
+        }
+    }
+    let mut d_scale = [0.0f32; 3];
+    for k in 0..3 {
+        let rgr = r[k] * gr[k] + r[3 + k] * gr[3 + k] + r[6 + k] * gr[6 + k];
+        d_scale[k] = if inside[k] { -2.0 * rgr / (s[k] * s[k] * s[k]) } else { 0.0 };
+    }
+    let inv_s2 = s.map(|v| 1.0 / (v * v));
+    let d = |i: usize, j: usize| 2.0 * gr[3 * i + j] * inv_s2[j];
+    let [w, x, y, z] = qn;
+    let gw = 2.0 * (-z * d(0, 1) + y * d(0, 2) + z * d(1, 0) - x * d(1, 2) - y * d(2, 0) + x * d(2, 1));
+    let gx = 2.0
+        * (y * d(0, 1) + z * d(0, 2) + y * d(1, 0) - 2.0 * x * d(1, 1) - w * d(1, 2) + z * d(2, 0) + w * d(2, 1)
+            - 2.0 * x * d(2, 2));
+    let gy = 2.0
+        * (-2.0 * y * d(0, 0) + x * d(0, 1) + w * d(0, 2) + x * d(1, 0) + z * d(1, 2) - w * d(2, 0) + z * d(2, 1)
+            - 2.0 * y * d(2, 2));
+    let gz = 2.0
+        * (-2.0 * z * d(0, 0) - w * d(0, 1) + x * d(0, 2) + w * d(1, 0) - 2.0 * z * d(1, 1)
+            + y * d(1, 2)
+            + x * d(2, 0)
+            + y * d(2, 1));
+    let gq = [gw, gx, gy, gz];
+    let dot = gq[0] * w + gq[1] * x + gq[2] * y + gq[3] * z;
+    let d_quat = [0, 1, 2, 3].map(|c| (gq[c] - qn[c] * dot) / norm);
+    (d_scale, d_quat)
+}
+
+/// Backward pass over all views: `grad` is `∂L/∂image`, `[V, H, W]`.
+pub fn render_backward(g: &HostGaussians, views: &[ViewParams], k_sigma: f32, grad: &[f32]) -> HostGrads {
+    let n = g.len();
+    let per: Vec<([f32; 3], [f32; 3], [f32; 4], f32, [f32; 2])> = (0..n)
+        .into_par_iter()
+        .with_min_len(64)
+        .map(|i| {
+            let (mean, scale, quat, density) = g.get(i);
+            let mut ws = WorldSums::default();
+            let mut offset = 0;
+            for vp in views {
+                let size = (vp.width * vp.height) as usize;
+                let view_grad = &grad[offset..offset + size];
+                offset += size;
+                let Some((p, frame)) = project(mean, scale, quat, density, vp, k_sigma) else {
+                    continue;
+                };
+                let s = footprint_sums(&p, vp, view_grad);
+                accumulate_view(&mut ws, s.unit, s.e, s.m, &frame, &p, vp);
+            }
+            let (d_scale, d_quat) = chain_precision(scale, quat, &ws.precision);
+            (ws.mean, d_scale, d_quat, ws.density, [ws.stat, ws.visible])
+        })
+        .collect();
+    let mut out = HostGrads {
+        means: Vec::with_capacity(3 * n),
+        scales: Vec::with_capacity(3 * n),
+        rotations: Vec::with_capacity(4 * n),
+        densities: Vec::with_capacity(n),
+        screen_stats: Vec::with_capacity(2 * n),
+    };
+    for (m, s, q, d, st) in per {
+        out.means.extend(m);
+        out.scales.extend(s);
+        out.rotations.extend(q);
+        out.densities.push(d);
+        out.screen_stats.extend(st);
+    }
+    out
+}

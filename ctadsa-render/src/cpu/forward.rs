@@ -1,0 +1,166 @@
+//! CPU forward pass: every pixel the exact line integral of the Gaussian mixture along its ray.
+//!
+//! Per view: project every Gaussian (parallel), bin the footprints into square tiles (Gaussian
+//! order kept, so the result does not depend on the thread count), then render the tiles in
+//! parallel, each Gaussian only over the exact per-row span of its footprint.
+
+use rayon::prelude::*;
+
+use super::host::HostGaussians;
+use super::math::{Projected, exp_neg, project};
+use crate::view_params::ViewParams;
+
+/// Tile edge in pixels.
+pub const TILE: i32 = 32;
+
+/// Projects all Gaussians into one view (`None` = culled).
+pub fn project_all(g: &HostGaussians, vp: &ViewParams, k_sigma: f32) -> Vec<Option<Projected>> {
+    (0..g.len())
+        .into_par_iter()
+        .with_min_len(1024)
+        .map(|i| {
+            let (m, s, q, d) = g.get(i);
+            project(m, s, q, d, vp, k_sigma).map(|(p, _)| p)
+        })
+        .collect()
+}
+
+/// Gaussian indices per tile, in Gaussian order: `ids[offsets[t]..offsets[t + 1]]`.
+pub struct TileBins {
+    pub tiles_x: i32,
+    pub tiles_y: i32,
+    pub offsets: Vec<u32>,
+    pub ids: Vec<u32>,
+}
+
+/// Bins footprint bounding boxes into tiles (counting sort; deterministic).
+pub fn bin_tiles(projected: &[Option<Projected>], vp: &ViewParams) -> TileBins {
+    let tiles_x = (vp.width as i32 + TILE - 1) / TILE;
+    let tiles_y = (vp.height as i32 + TILE - 1) / TILE;
+    let n_tiles = (tiles_x * tiles_y) as usize;
+    let mut counts = vec![0u32; n_tiles + 1];
+    let range = |p: &Projected| (p.col_min / TILE, p.col_max / TILE, p.row_min / TILE, p.row_max / TILE);
+    for p in projected.iter().flatten() {
+        let (tx0, tx1, ty0, ty1) = range(p);
+        for ty in ty0..=ty1 {
+            for tx in tx0..=tx1 {
+                counts[(ty * tiles_x + tx) as usize + 1] += 1;
+            }
+        }
+    }
+    for t in 0..n_tiles {
+        counts[t + 1] += counts[t];
+    }
+    let offsets = counts;
+    let mut fill = offsets.clone();
+    let mut ids = vec![0u32; offsets[n_tiles] as usize];
+    for (i, p) in projected.iter().enumerate() {
+        let Some(p) = p else { continue };
+        let (tx0, tx1, ty0, ty1) = range(p);
+        for ty in ty0..=ty1 {
+            for tx in tx0..=tx1 {
+                let t = (ty * tiles_x + tx) as usize;
+                ids[fill[t] as usize] = i as u32;
+                fill[t] += 1;
+            }
+        }
+    }
+    TileBins { tiles_x, tiles_y, offsets, ids }
+}
+
+/// Adds Gaussian `p` to pixels `[c0, c1]` of image row `row`, stored from `out[0]` (column `c0`).
+#[inline(always)]
+fn splat_row(p: &Projected, vp: &ViewParams, row: i32, c0: i32, c1: i32, out: &mut [f32]) {
+    let re = p.row_eval(row, vp);
+    let n = (c1 - c0 + 1) as usize;
+    for (j, o) in out[..n].iter_mut().enumerate() {
+        let dx = ((c0 + j as i32) as f32 - p.u0) * vp.inv_fx;
+        let alpha = re.a0 + dx * (re.a1 + dx * re.a2);
+        let quad = re.n0 + dx * (re.n1 + dx * re.n2);
+        let xn = p.x0 + dx;
+        let r2 = re.r0 + xn * xn;
+        let inv_a = 1.0 / alpha;
+        *o += p.amp * (r2 * inv_a).sqrt() * exp_neg(-0.5 * quad * inv_a);
+    }
+}
+
+/// Renders one tile into `buf` (`TILE × TILE`, row-major).
+fn render_tile(projected: &[Option<Projected>], ids: &[u32], vp: &ViewParams, tx: i32, ty: i32, buf: &mut [f32]) {
+    let (x_lo, y_lo) = (tx * TILE, ty * TILE);
+    let x_hi = (x_lo + TILE - 1).min(vp.width as i32 - 1);
+    let y_hi = (y_lo + TILE - 1).min(vp.height as i32 - 1);
+    for &id in ids {
+        let Some(p) = &projected[id as usize] else { continue };
+        let r0 = p.row_min.max(y_lo);
+        let r1 = p.row_max.min(y_hi);
+        let lo = p.col_min.max(x_lo);
+        let hi = p.col_max.min(x_hi);
+        for row in r0..=r1 {
+            if let Some((c0, c1)) = p.row_span(row, vp, lo, hi) {
+                let start = ((row - y_lo) * TILE + (c0 - x_lo)) as usize;
+                splat_row(p, vp, row, c0, c1, &mut buf[start..]);
+            }
+        }
+    }
+}
+
+/// Renders all views: output `[V, H, W]` row-major, line integrals in density × mm.
+pub fn render(g: &HostGaussians, views: &[ViewParams], k_sigma: f32) -> Vec<f32> {
+    let Some(first) = views.first() else { return Vec::new() };
+    let (w, h) = (first.width as usize, first.height as usize);
+    let mut out = vec![0.0f32; views.len() * w * h];
+    for (vp, image) in views.iter().zip(out.chunks_mut(w * h)) {
+        render_view(g, vp, k_sigma, image);
+    }
+    out
+}
+
+/// Renders one view into `image` (`H × W`, row-major).
+pub fn render_view(g: &HostGaussians, vp: &ViewParams, k_sigma: f32, image: &mut [f32]) {
+    let projected = project_all(g, vp, k_sigma);
+    let bins = bin_tiles(&projected, vp);
+    let tiles: Vec<(i32, i32)> = (0..bins.tiles_y).flat_map(|ty| (0..bins.tiles_x).map(move |tx| (tx, ty))).collect();
+    let rendered: Vec<Vec<f32>> = tiles
+        .par_iter()
+        .map(|&(tx, ty)| {
+            let t = (ty * bins.tiles_x + tx) as usize;
+            let ids = &bins.ids[bins.offsets[t] as usize..bins.offsets[t + 1] as usize];
+            let mut buf = vec![0.0f32; (TILE * TILE) as usize];
+            render_tile(&projected, ids, vp, tx, ty, &mut buf);
+            buf
+        })
+        .collect();
+    let w = vp.width as usize;
+    for (&(tx, ty), buf) in tiles.iter().zip(&rendered) {
+        let x_lo = (tx * TILE) as usize;
+        let cols = (w - x_lo).min(TILE as usize);
+        for r in 0..TILE as usize {
+            let row = ty as usize * TILE as usize + r;
+            if row >= vp.height as usize {
+                break;
+            }
+            let dst = &mut image[row * w + x_lo..row * w + x_lo + cols];
+            dst.copy_from_slice(&buf[r * TILE as usize..r * TILE as usize + cols]);
+        }
+    }
+}
+
+/// Number of (pixel, Gaussian) pairs the forward pass evaluates (pixels inside the k-σ
+/// footprints), for throughput figures.
+pub fn count_pairs(g: &HostGaussians, views: &[ViewParams], k_sigma: f32) -> u64 {
+    views
+        .iter()
+        .map(|vp| {
+            project_all(g, vp, k_sigma)
+                .par_iter()
+                .flatten()
+                .map(|p| {
+                    (p.row_min..=p.row_max)
+                        .filter_map(|row| p.row_span(row, vp, p.col_min, p.col_max))
+                        .map(|(c0, c1)| (c1 - c0 + 1) as u64)
+                        .sum::<u64>()
+                })
+                .sum::<u64>()
+        })
+        .sum()
+}

@@ -1,0 +1,13 @@
+//! CPU kernels (rayon) on host slices: forward, backward, voxelisation, and pair counting.
+//! They are the reference the GPU kernels are tested against.
+
+pub mod backward;
+pub mod forward;
+pub mod host;
+pub mod math;
+pub mod voxelize;
+
+pub use backward::{HostGrads, render_backward};
+pub use forward::{count_pairs, render};
+pub use host::HostGaussians;
+pub use voxelize::voxelize;

@@ -1,0 +1,1 @@
+pub use ctadsa_render as render;
