@@ -1,1 +1,35 @@
-fn main() {}
+//! `ctadsa`: complete a patient's 3-D cerebral vessel tree from a CTA prior and DSA views.
+
+mod backend;
+mod bench;
+mod progress;
+mod synth;
+
+use anyhow::Result;
+use clap::{Parser, Subcommand};
+
+/// ctadsa — 3-D cerebrovascular shape completion from biplane angiography and a CTA prior.
+#[derive(Parser)]
+#[command(name = "ctadsa", version, about, long_about = None)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Synthesise a case folder (views, prior, ground truth) from a vessel tree, a label volume,
+    /// or the built-in procedural tree.
+    Synth(synth::SynthArgs),
+    /// Benchmarks (renderer, projector) with a table of timings and throughput.
+    Bench(bench::BenchArgs),
+}
+
+fn main() -> Result<()> {
+    backend::prefer_cpu_default_device();
+    let cli = Cli::parse();
+    match cli.command {
+        Command::Synth(args) => synth::run(args),
+        Command::Bench(args) => bench::run(args),
+    }
+}

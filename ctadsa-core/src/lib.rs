@@ -1,1 +1,20 @@
+//! The method and its data: case folders, vessel trees and phantoms, the voxel projector used to
+//! synthesise DSA views, meshes, and (in later modules) the shape-completion model and metrics.
+//! Units are millimetres in world coordinates (isocentre at the origin), as in `ctadsa-render`.
 
+pub mod case;
+pub mod config;
+pub mod densify;
+pub mod error;
+pub mod init;
+pub mod loss;
+pub mod mesh;
+pub mod metrics;
+pub mod model;
+pub mod projector;
+pub mod synth;
+pub mod train;
+pub mod tree;
+pub mod volume;
+
+pub use error::{CoreError, Result};

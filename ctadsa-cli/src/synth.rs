@@ -1,0 +1,179 @@
+//! `ctadsa synth`: make case folders.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result, bail};
+use clap::Args;
+use ctadsa_core::projector::noise::NoiseModel;
+use ctadsa_core::synth::presets::GeometryPreset;
+use ctadsa_core::synth::{Anatomy, SynthConfig, synthesize};
+use ctadsa_core::tree::prior::PriorThreshold;
+use ctadsa_core::tree::procedural::ProceduralTree;
+
+use crate::progress::bar;
+
+#[derive(Args)]
+pub struct SynthArgs {
+    /// Output folder (one case), or parent folder with --all-swc.
+    #[arg(long)]
+    out: PathBuf,
+    /// A vessel tree (SWC). Default: the built-in procedural tree.
+    #[arg(long, conflicts_with_all = ["labels", "all_swc"])]
+    tree: Option<PathBuf>,
+    /// Every `*.swc` in this folder, one case each (named after the file).
+    #[arg(long, conflicts_with = "labels")]
+    all_swc: Option<PathBuf>,
+    /// A label volume (NIfTI) instead of a tree.
+    #[arg(long)]
+    labels: Option<PathBuf>,
+    /// Label values to use from --labels (comma-separated; default: every non-zero label).
+    #[arg(long, value_delimiter = ',')]
+    label_ids: Vec<u32>,
+    /// Seed of the procedural tree.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Terminal segments of the procedural tree.
+    #[arg(long, default_value_t = 120)]
+    terminals: usize,
+    /// Views: ap-lat, ap-lat-oblique, or angles:P[/S],… (degrees).
+    #[arg(long, default_value = "ap-lat-oblique")]
+    views: String,
+    /// Geometry preset: reference (DSD 700, DSO 500, 512², 0.5 mm) or c-arm (1200, 800, 1024², 0.2 mm).
+    #[arg(long, default_value = "reference")]
+    geometry: String,
+    /// Detector binning factor.
+    #[arg(long, default_value_t = 1)]
+    binning: u32,
+    /// Voxel size (mm); default 256 voxels along the longest side of the tree's box.
+    #[arg(long)]
+    voxel_mm: Option<f64>,
+    /// Prior: keep vessels with diameter ≥ these (mm); the first is the case's prior.
+    #[arg(long, value_delimiter = ',', default_values_t = vec![1.5])]
+    prior_diameter: Vec<f64>,
+    /// Prior by length percentile instead (drop the thinnest P% of centreline length).
+    #[arg(long, value_delimiter = ',', conflicts_with = "prior_diameter")]
+    prior_percentile: Vec<f64>,
+    /// Rotation (degrees about x, y, z) after centring.
+    #[arg(long, value_delimiter = ',', num_args = 3, allow_hyphen_values = true)]
+    rotate_deg: Option<Vec<f64>>,
+    /// Translation (mm) after the rotation.
+    #[arg(long, value_delimiter = ',', num_args = 3, allow_hyphen_values = true)]
+    translate_mm: Option<Vec<f64>>,
+    /// DSA value per mm of vessel.
+    #[arg(long, default_value_t = 1.0)]
+    contrast: f64,
+    /// Poisson noise: unattenuated photons per pixel.
+    #[arg(long)]
+    noise_photons: Option<f64>,
+    /// Gaussian noise standard deviation (image units).
+    #[arg(long)]
+    noise_sigma: Option<f64>,
+    /// Divide images by their maximum over all views (recorded in the case).
+    #[arg(long)]
+    normalise: bool,
+    /// Sub-samples per voxel edge for vessel occupancy.
+    #[arg(long, default_value_t = 2)]
+    supersample: usize,
+}
+
+fn three(v: &Option<Vec<f64>>, what: &str) -> Result<[f64; 3]> {
+    match v {
+        None => Ok([0.0; 3]),
+        Some(v) if v.len() == 3 => Ok([v[0], v[1], v[2]]),
+        Some(v) => bail!("{what} needs 3 values, got {}", v.len()),
+    }
+}
+
+pub fn config_from(args: &SynthArgs, anatomy: Anatomy, name: String) -> Result<SynthConfig> {
+    let priors = if args.prior_percentile.is_empty() {
+        args.prior_diameter.iter().map(|&d| PriorThreshold::DiameterMm(d)).collect()
+    } else {
+        args.prior_percentile.iter().map(|&p| PriorThreshold::LengthPercentile(p)).collect()
+    };
+    Ok(SynthConfig {
+        name,
+        anatomy,
+        rotation_deg: three(&args.rotate_deg, "--rotate-deg")?,
+        translation_mm: three(&args.translate_mm, "--translate-mm")?,
+        voxel_mm: args.voxel_mm,
+        supersample: args.supersample,
+        views: args.views.clone(),
+        geometry: GeometryPreset::parse(&args.geometry)?,
+        binning: args.binning,
+        contrast_per_mm: args.contrast,
+        noise: NoiseModel {
+            poisson_photons: args.noise_photons,
+            gaussian_sigma: args.noise_sigma,
+            ..Default::default()
+        },
+        normalise: args.normalise,
+        priors,
+    })
+}
+
+pub fn run(args: SynthArgs) -> Result<()> {
+    let mut jobs: Vec<(Anatomy, String, PathBuf)> = Vec::new();
+    if let Some(dir) = &args.all_swc {
+        let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+            .with_context(|| format!("cannot list {}", dir.display()))?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("swc")))
+            .collect();
+        files.sort();
+        if files.is_empty() {
+            bail!("no .swc file in {}", dir.display());
+        }
+        for f in files {
+            let stem = f
+                .file_name()
+                .and_then(|n| n.to_str())
+                .unwrap_or("tree")
+                .split('.')
+                .next()
+                .unwrap_or("tree")
+                .to_string();
+            jobs.push((Anatomy::Swc { path: f }, stem.clone(), args.out.join(stem)));
+        }
+    } else if let Some(t) = &args.tree {
+        let stem = t.file_stem().and_then(|s| s.to_str()).unwrap_or("tree").to_string();
+        jobs.push((Anatomy::Swc { path: t.clone() }, stem, args.out.clone()));
+    } else if let Some(l) = &args.labels {
+        let stem = l
+            .file_name()
+            .and_then(|s| s.to_str())
+            .unwrap_or("labels")
+            .split('.')
+            .next()
+            .unwrap_or("labels")
+            .to_string();
+        jobs.push((Anatomy::Labels { path: l.clone(), labels: args.label_ids.clone() }, stem, args.out.clone()));
+    } else {
+        let p = ProceduralTree { seed: args.seed, terminals: args.terminals, ..Default::default() };
+        jobs.push((Anatomy::Procedural(p), format!("procedural-seed{}", args.seed), args.out.clone()));
+    }
+    let steps = ["anatomy", "meshes", "projections", "files"];
+    let pb = bar((jobs.len() * steps.len()) as u64, "synth");
+    for (anatomy, name, out) in jobs {
+        let cfg = config_from(&args, anatomy, name.clone())?;
+        let summary = synthesize(&cfg, &out, &mut |step| {
+            pb.set_message(format!("{name}: {step}"));
+            pb.inc(1);
+        })
+        .with_context(|| format!("synthesising case `{name}`"))?;
+        for w in &summary.warnings {
+            pb.println(format!("warning: {w}"));
+        }
+        pb.println(format!(
+            "{name}: {} views, {:?} voxels of {:.3} mm, vessel volume {:.0} mm³ (prior {:.0} mm³ at ≥ {:.2} mm) → {}",
+            summary.views,
+            summary.voxels,
+            summary.voxel_mm[0],
+            summary.complete_volume_mm3,
+            summary.prior_volume_mm3,
+            summary.prior_thresholds_mm[0],
+            summary.dir.display()
+        ));
+    }
+    pb.finish_with_message("done");
+    Ok(())
+}

@@ -1,0 +1,371 @@
+//! The TOML configuration of a completion run. Every section and key has a default (the
+//! paper's values where the paper gives one); unknown keys and out-of-range values are errors
+//! that name the key. `--set section.key=value` overrides are applied to the TOML tree before
+//! it is read, so they are checked the same way.
+
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{CoreError, Result, read_file};
+use crate::model::field::FieldConfig;
+
+/// How the N2 seeds are chosen.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum SeedMode {
+    /// Residual (vessel mask minus the dilated prior projection) back-projected, supported in
+    /// every view, outside the prior (the method).
+    ResidualIntersect,
+    /// Residual back-projection summed over views, no intersection (ablation).
+    ResidualUnion,
+    /// Uniform random points in the working box outside the prior (ablation).
+    Uniform,
+    /// Vessel masks (not residuals) back-projected and intersected; no prior needed
+    /// (R²-Gaussian-like baseline).
+    AllViewsIntersect,
+    /// No N2 seeds (prior only).
+    None,
+}
+
+/// `[run]`
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RunConfig {
+    pub iterations: usize,
+    pub seed: u64,
+    /// Views rendered per step: 0 = all, n = n random views.
+    pub views_per_step: usize,
+    /// Checkpoint every this many iterations (0 = only at the end).
+    pub checkpoint_every: usize,
+    /// Detector binning applied to the case's images and views (1 = native).
+    pub image_binning: u32,
+    /// Use only these views of the case (indices; empty = all).
+    pub views: Vec<usize>,
+}
+
+impl Default for RunConfig {
+    fn default() -> Self {
+        Self {
+            iterations: 30_000,
+            seed: 42,
+            views_per_step: 1,
+            checkpoint_every: 5000,
+            image_binning: 1,
+            views: vec![],
+        }
+    }
+}
+
+/// `[init]`
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct InitConfig {
+    /// Gaussians sampled on the prior surface.
+    pub n1: usize,
+    /// Gaussians seeded from the images.
+    pub n2: usize,
+    pub n2_mode: SeedMode,
+    /// Vessel mask: pixels ≥ this × the 99.5th percentile of the view's positive pixels.
+    pub mask_threshold: f64,
+    /// Dilation (pixels) of the projected prior before it is subtracted.
+    pub prior_dilation_px: u32,
+    /// Dilation (pixels) of the residual masks before back-projection.
+    pub residual_dilation_px: u32,
+    /// Voxel of the back-projection grid (mm); 0 = the case's working voxel.
+    pub n2_voxel_mm: f64,
+    /// Neighbours for the initial isotropic scale.
+    pub knn: usize,
+}
+
+impl Default for InitConfig {
+    fn default() -> Self {
+        Self {
+            n1: 30_000,
+            n2: 30_000,
+            n2_mode: SeedMode::ResidualIntersect,
+            mask_threshold: 0.05,
+            prior_dilation_px: 3,
+            residual_dilation_px: 1,
+            n2_voxel_mm: 0.0,
+            knn: 3,
+        }
+    }
+}
+
+/// `[model]`
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ModelConfig {
+    /// Scale bounds in working-grid voxels (paper: 0.1 and 10).
+    pub scale_min_voxels: f64,
+    pub scale_max_voxels: f64,
+    /// Footprint cut-off (standard deviations).
+    pub k_sigma: f32,
+    /// Initial density of every Gaussian (density units, per mm); 0 = estimated from the images.
+    pub initial_density: f64,
+}
+
+impl Default for ModelConfig {
+    fn default() -> Self {
+        Self { scale_min_voxels: 0.1, scale_max_voxels: 10.0, k_sigma: 3.0, initial_density: 0.0 }
+    }
+}
+
+/// A learning rate decaying exponentially from `[0]` to `[1]` over the run.
+pub type LrRange = [f64; 2];
+
+/// `[optim]`
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct OptimConfig {
+    /// Centres (mm per step; reference: 1e-4 × 200 mm).
+    pub lr_means: LrRange,
+    pub lr_scales: LrRange,
+    pub lr_rotations: LrRange,
+    pub lr_field: LrRange,
+    /// Adam ε (reference 1e-15).
+    pub epsilon: f64,
+    /// Adam weight decay on the field (reference 5e-5).
+    pub field_weight_decay: f64,
+}
+
+impl Default for OptimConfig {
+    fn default() -> Self {
+        Self {
+            lr_means: [0.02, 0.002],
+            lr_scales: [5e-3, 5e-4],
+            lr_rotations: [1e-3, 1e-4],
+            lr_field: [1e-3, 1e-4],
+            epsilon: 1e-15,
+            field_weight_decay: 5e-5,
+        }
+    }
+}
+
+/// `[loss]`
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LossConfig {
+    /// λ of `(1 − λ) L1 + λ (1 − SSIM)`.
+    pub lambda_dssim: f64,
+    pub fn_weight: f64,
+    pub fn_start: usize,
+    /// Vessel pixels for the FN loss: ≥ τ × the 99.5th percentile of the target's positives.
+    pub fn_tau: f64,
+    pub fn_margin: f64,
+    pub pa_weight: f64,
+    pub pa_start: usize,
+    /// Anchoring radius (mm) and neighbours.
+    pub pa_radius_mm: f64,
+    pub pa_k: usize,
+    /// Gaussians sampled per step for the anchoring term (0 = all).
+    pub pa_samples: usize,
+}
+
+impl Default for LossConfig {
+    fn default() -> Self {
+        Self {
+            lambda_dssim: 0.07,
+            fn_weight: 1.5,
+            fn_start: 4000,
+            fn_tau: 0.01,
+            fn_margin: 0.005,
+            pa_weight: 0.0025,
+            pa_start: 1000,
+            pa_radius_mm: 0.5,
+            pa_k: 8,
+            pa_samples: 2048,
+        }
+    }
+}
+
+/// `[densify]`
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DensifyConfig {
+    pub enabled: bool,
+    pub from: usize,
+    pub until: usize,
+    pub every: usize,
+    /// Threshold on the mean NDC projected-centre gradient norm.
+    pub grad_threshold: f64,
+    /// Clone (not split) when max scale ≤ this × voxel; decays exponentially from the first to
+    /// the second value over `[from, until]`.
+    pub clone_scale_voxels: [f64; 2],
+    /// Prune Gaussians with density below this.
+    pub min_density: f64,
+    /// Never grow beyond this many Gaussians.
+    pub max_gaussians: usize,
+}
+
+impl Default for DensifyConfig {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            from: 500,
+            until: 15_000,
+            every: 200,
+            grad_threshold: 1e-4,
+            clone_scale_voxels: [2.5, 0.5],
+            min_density: 1e-6,
+            max_gaussians: 500_000,
+        }
+    }
+}
+
+/// `[output]`
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct OutputConfig {
+    /// Iso-level of the completed surface as a fraction of the density volume's 99.9th
+    /// percentile (`mc_relative = true`) or in density units.
+    pub mc_level: f64,
+    pub mc_relative: bool,
+    /// Voxel of the output density volume (mm); 0 = the case's working voxel.
+    pub voxel_mm: f64,
+    /// Mesh format: obj, ply or stl.
+    pub mesh_format: String,
+    /// Surface samples for metrics.
+    pub metric_samples: usize,
+}
+
+impl Default for OutputConfig {
+    fn default() -> Self {
+        Self { mc_level: 0.25, mc_relative: true, voxel_mm: 0.0, mesh_format: "obj".into(), metric_samples: 50_000 }
+    }
+}
+
+/// The whole configuration.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Config {
+    pub run: RunConfig,
+    pub init: InitConfig,
+    pub model: ModelConfig,
+    pub field: FieldConfig,
+    pub optim: OptimConfig,
+    pub loss: LossConfig,
+    pub densify: DensifyConfig,
+    pub output: OutputConfig,
+}
+
+fn check(ok: bool, key: &str, what: impl std::fmt::Display) -> Result<()> {
+    if ok { Ok(()) } else { Err(CoreError::invalid(format!("config key `{key}`: {what}"))) }
+}
+
+/// Parses a `--set` value: TOML syntax when it parses (numbers, booleans, arrays, quoted
+/// strings), otherwise a bare string.
+fn parse_value(text: &str) -> toml::Value {
+    let doc = format!("v = {text}");
+    match doc.parse::<toml::Table>() {
+        Ok(mut t) => t.remove("v").unwrap_or(toml::Value::String(text.into())),
+        Err(_) => toml::Value::String(text.into()),
+    }
+}
+
+impl Config {
+    /// Reads a TOML file and applies `key=value` overrides.
+    pub fn load(path: Option<&Path>, overrides: &[String]) -> Result<Self> {
+        let (text, name) = match path {
+            Some(p) => {
+                let bytes = read_file(p)?;
+                (String::from_utf8(bytes).map_err(|_| CoreError::format(p, "not UTF-8 text"))?, p.display().to_string())
+            }
+            None => (String::new(), "<defaults>".into()),
+        };
+        let mut table: toml::Table = text
+            .parse()
+            .map_err(|e| CoreError::Format { path: name.clone().into(), problem: format!("invalid TOML: {e}") })?;
+        for o in overrides {
+            let (key, value) = o
+                .split_once('=')
+                .ok_or_else(|| CoreError::invalid(format!("override `{o}` is not of the form section.key=value")))?;
+            let parts: Vec<&str> = key.trim().split('.').collect();
+            let mut t = &mut table;
+            for p in &parts[..parts.len() - 1] {
+                t = t
+                    .entry(p.to_string())
+                    .or_insert_with(|| toml::Value::Table(toml::Table::new()))
+                    .as_table_mut()
+                    .ok_or_else(|| CoreError::invalid(format!("override `{o}`: `{p}` is not a section")))?;
+            }
+            t.insert(parts[parts.len() - 1].to_string(), parse_value(value.trim()));
+        }
+        let cfg: Config = toml::Value::Table(table)
+            .try_into()
+            .map_err(|e: toml::de::Error| CoreError::Format { path: name.into(), problem: format!("{e}") })?;
+        cfg.validate()?;
+        Ok(cfg)
+    }
+
+    /// Range checks; the error names the key.
+    pub fn validate(&self) -> Result<()> {
+        check(self.run.iterations >= 1, "run.iterations", "must be ≥ 1")?;
+        check(self.run.image_binning >= 1, "run.image_binning", "must be ≥ 1")?;
+        check(self.init.n1 + self.init.n2 >= 1, "init.n1", "n1 + n2 must be ≥ 1")?;
+        check((0.0..1.0).contains(&self.init.mask_threshold), "init.mask_threshold", "must be in [0, 1)")?;
+        check(self.init.knn >= 1, "init.knn", "must be ≥ 1")?;
+        check(self.init.n2_voxel_mm >= 0.0, "init.n2_voxel_mm", "must be ≥ 0")?;
+        check(
+            self.model.scale_min_voxels > 0.0 && self.model.scale_max_voxels > self.model.scale_min_voxels,
+            "model.scale_max_voxels",
+            "need 0 < scale_min_voxels < scale_max_voxels",
+        )?;
+        check(self.model.k_sigma > 0.0 && self.model.k_sigma <= 20.0, "model.k_sigma", "must be in (0, 20]")?;
+        check(self.model.initial_density >= 0.0, "model.initial_density", "must be ≥ 0")?;
+        self.field.encoding.validate().map_err(|e| CoreError::invalid(format!("config `field.encoding`: {e}")))?;
+        check((1..=4).contains(&self.field.hidden_layers), "field.hidden_layers", "must be in 1..=4")?;
+        check(self.field.hidden >= 1, "field.hidden", "must be ≥ 1")?;
+        for (k, r) in [
+            ("optim.lr_means", self.optim.lr_means),
+            ("optim.lr_scales", self.optim.lr_scales),
+            ("optim.lr_rotations", self.optim.lr_rotations),
+            ("optim.lr_field", self.optim.lr_field),
+        ] {
+            check(r.iter().all(|v| v.is_finite() && *v >= 0.0), k, "learning rates must be finite and ≥ 0")?;
+        }
+        check(self.optim.epsilon > 0.0, "optim.epsilon", "must be > 0")?;
+        check((0.0..=1.0).contains(&self.loss.lambda_dssim), "loss.lambda_dssim", "must be in [0, 1]")?;
+        check(self.loss.fn_weight >= 0.0, "loss.fn_weight", "must be ≥ 0")?;
+        check(self.loss.pa_weight >= 0.0, "loss.pa_weight", "must be ≥ 0")?;
+        check(self.loss.pa_k >= 1, "loss.pa_k", "must be ≥ 1")?;
+        check(self.loss.pa_radius_mm > 0.0, "loss.pa_radius_mm", "must be > 0")?;
+        check(self.densify.every >= 1, "densify.every", "must be ≥ 1")?;
+        check(self.densify.grad_threshold > 0.0, "densify.grad_threshold", "must be > 0")?;
+        check(self.output.mc_level > 0.0, "output.mc_level", "must be > 0")?;
+        check(
+            ["obj", "ply", "stl"].contains(&self.output.mesh_format.as_str()),
+            "output.mesh_format",
+            "must be obj, ply or stl",
+        )?;
+        Ok(())
+    }
+
+    /// The configuration as TOML (written next to every run).
+    pub fn to_toml(&self) -> String {
+        toml::to_string_pretty(self).unwrap_or_default()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn unknown_keys_and_bad_values_name_the_key() {
+        let err = Config::load(None, &["run.iterationz=5".into()]).unwrap_err().to_string();
+        assert!(err.contains("iterationz"), "{err}");
+        let err = Config::load(None, &["loss.lambda_dssim=2".into()]).unwrap_err().to_string();
+        assert!(err.contains("loss.lambda_dssim"), "{err}");
+        let err = Config::load(None, &["init.n2_mode=\"sideways\"".into()]).unwrap_err().to_string();
+        assert!(err.contains("sideways") || err.contains("n2_mode"), "{err}");
+        let ok = Config::load(None, &["run.iterations=7".into(), "init.n2_mode=uniform".into()]).unwrap();
+        assert_eq!(ok.run.iterations, 7);
+        assert_eq!(ok.init.n2_mode, SeedMode::Uniform);
+        // Round trip through TOML.
+        let text = ok.to_toml();
+        let back: Config = toml::from_str(&text).unwrap();
+        assert_eq!(back, ok);
+    }
+}

@@ -1,0 +1,292 @@
+//! Initial Gaussians from what a user has — the DSA images, their geometry and the prior mesh:
+//!
+//! - N1: centres sampled area-uniformly on the prior surface;
+//! - N2: the residual back-projection. Per view, vessel mask minus the dilated projection of the
+//!   (solid) prior; each voxel of a back-projection grid is looked up in every view's residual
+//!   and kept when supported in all views (intersection) and outside the prior; the N2 voxels
+//!   with the largest geometric-mean residual intensity become centres (jittered inside the voxel).
+//!   Variants: union instead of intersection, uniform random, masks instead of residuals.
+//! - isotropic scales from the mean squared distance to the k nearest other centres, identity
+//!   rotations.
+
+use ctadsa_render::ConeBeamView;
+use glam::DVec3;
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+
+use crate::case::images::Image;
+use crate::config::{InitConfig, SeedMode};
+use crate::error::{CoreError, Result};
+use crate::mesh::TriMesh;
+use crate::mesh::sample::sample_surface;
+use crate::mesh::voxelize::voxelize_mesh;
+use crate::metrics::percentile;
+use crate::model::{GaussianInit, ScaleBounds};
+use crate::projector::project_volume;
+use crate::volume::{BoxMm, Grid, Volume};
+
+/// A binary image mask (row-major).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Mask {
+    pub width: u32,
+    pub height: u32,
+    pub data: Vec<bool>,
+}
+
+impl Mask {
+    /// Square dilation by `r` pixels (separable max filter).
+    pub fn dilated(&self, r: u32) -> Mask {
+        if r == 0 {
+            return self.clone();
+        }
+        let (w, h, r) = (self.width as usize, self.height as usize, r as usize);
+        let mut tmp = vec![false; w * h];
+        for y in 0..h {
+            for x in 0..w {
+                let (x0, x1) = (x.saturating_sub(r), (x + r).min(w - 1));
+                tmp[y * w + x] = self.data[y * w + x0..=y * w + x1].iter().any(|&b| b);
+            }
+        }
+        let mut out = vec![false; w * h];
+        for y in 0..h {
+            for x in 0..w {
+                let (y0, y1) = (y.saturating_sub(r), (y + r).min(h - 1));
+                out[y * w + x] = (y0..=y1).any(|yy| tmp[yy * w + x]);
+            }
+        }
+        Mask { width: self.width, height: self.height, data: out }
+    }
+
+    /// Pixels set in `self` and not in `other`.
+    pub fn minus(&self, other: &Mask) -> Mask {
+        Mask { data: self.data.iter().zip(&other.data).map(|(&a, &b)| a && !b).collect(), ..self.clone() }
+    }
+
+    /// Number of set pixels.
+    pub fn count(&self) -> usize {
+        self.data.iter().filter(|&&b| b).count()
+    }
+}
+
+/// The image value that defines "vessel": `threshold ×` the 99.5th percentile of the positive
+/// pixels (0 for an image without positive pixels).
+pub fn vessel_level(image: &Image, threshold: f64) -> f64 {
+    let pos: Vec<f64> = image.data.iter().filter(|&&v| v > 0.0).map(|&v| v as f64).collect();
+    if pos.is_empty() { 0.0 } else { threshold * percentile(&pos, 99.5) }
+}
+
+/// Vessel mask of an image.
+pub fn vessel_mask(image: &Image, threshold: f64) -> Mask {
+    let level = vessel_level(image, threshold);
+    Mask {
+        width: image.width,
+        height: image.height,
+        data: image.data.iter().map(|&v| v as f64 > level && v > 0.0).collect(),
+    }
+}
+
+/// The prior as solid voxels on `grid`.
+pub fn prior_solid(prior: &TriMesh, grid: Grid) -> Volume<u8> {
+    voxelize_mesh(prior, grid)
+}
+
+/// Silhouette of a solid volume in each view (pixels whose ray crosses it).
+pub fn silhouettes(solid: &Volume<u8>, views: &[ConeBeamView]) -> Vec<Mask> {
+    let f = solid.map(|v| v as f32);
+    project_volume(&f, views)
+        .into_iter()
+        .zip(views)
+        .map(|(img, v)| Mask { width: v.width(), height: v.height(), data: img.iter().map(|&x| x > 0.0).collect() })
+        .collect()
+}
+
+/// Pixel of a world point in a view (nearest pixel centre), if on the detector.
+#[inline]
+fn pixel_of(view: &ConeBeamView, p: DVec3) -> Option<usize> {
+    let uv = view.project(p)?;
+    let (c, r) = (uv.x.round(), uv.y.round());
+    if c < 0.0 || r < 0.0 || c >= view.width() as f64 || r >= view.height() as f64 {
+        return None;
+    }
+    Some(r as usize * view.width() as usize + c as usize)
+}
+
+/// Seeds scored by the back-projection of per-view support masks and intensity images.
+fn back_project(
+    grid: &Grid,
+    views: &[ConeBeamView],
+    masks: &[Mask],
+    values: &[Image],
+    prior: Option<&Volume<u8>>,
+    intersect: bool,
+) -> Vec<(f64, DVec3)> {
+    let [nx, ny, nz] = grid.dims;
+    (0..nx)
+        .into_par_iter()
+        .flat_map_iter(|i| {
+            let mut out = Vec::new();
+            for j in 0..ny {
+                for k in 0..nz {
+                    let idx = grid.index(i, j, k);
+                    if prior.is_some_and(|p| p.data[idx] != 0) {
+                        continue;
+                    }
+                    let c = grid.centre_mm(i, j, k);
+                    let mut supported = 0usize;
+                    let mut log_sum = 0.0;
+                    let mut sum = 0.0;
+                    for ((v, m), img) in views.iter().zip(masks).zip(values) {
+                        if let Some(px) = pixel_of(v, c) {
+                            if m.data[px] {
+                                supported += 1;
+                                let val = (img.data[px] as f64).max(1e-12);
+                                log_sum += val.ln();
+                                sum += val;
+                            }
+                        }
+                    }
+                    let keep = if intersect { supported == views.len() } else { supported > 0 };
+                    if keep {
+                        let score = if intersect { (log_sum / views.len() as f64).exp() } else { sum };
+                        out.push((score, c));
+                    }
+                }
+            }
+            out
+        })
+        .collect()
+}
+
+/// The N2 centres for `mode`.
+#[allow(clippy::too_many_arguments)]
+pub fn n2_seeds(
+    cfg: &InitConfig,
+    views: &[ConeBeamView],
+    images: &[Image],
+    prior: Option<&TriMesh>,
+    bounds: &BoxMm,
+    voxel_mm: f64,
+    seed: u64,
+) -> Result<Vec<DVec3>> {
+    if cfg.n2 == 0 || cfg.n2_mode == SeedMode::None {
+        return Ok(Vec::new());
+    }
+    let h = if cfg.n2_voxel_mm > 0.0 { cfg.n2_voxel_mm } else { voxel_mm };
+    let grid = Grid::covering(bounds, h)?;
+    let solid = prior.map(|p| prior_solid(p, grid));
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x4e32);
+    if cfg.n2_mode == SeedMode::Uniform {
+        let mut out = Vec::with_capacity(cfg.n2);
+        let mut tries = 0usize;
+        while out.len() < cfg.n2 && tries < 1000 * cfg.n2 {
+            tries += 1;
+            let p = DVec3::new(
+                rng.random_range(bounds.min_mm[0]..bounds.max_mm[0]),
+                rng.random_range(bounds.min_mm[1]..bounds.max_mm[1]),
+                rng.random_range(bounds.min_mm[2]..bounds.max_mm[2]),
+            );
+            let inside_prior = solid.as_ref().is_some_and(|s| {
+                let ijk = [0, 1, 2].map(|a| ((p[a] - grid.origin_mm[a]) / h).floor() as usize);
+                ijk.iter().zip(grid.dims).all(|(&i, d)| i < d) && s.get(ijk[0], ijk[1], ijk[2]) != 0
+            });
+            if !inside_prior {
+                out.push(p);
+            }
+        }
+        return Ok(out);
+    }
+    let masks: Vec<Mask> = images.iter().map(|img| vessel_mask(img, cfg.mask_threshold)).collect();
+    let support: Vec<Mask> = match cfg.n2_mode {
+        SeedMode::AllViewsIntersect => masks.iter().map(|m| m.dilated(cfg.residual_dilation_px)).collect(),
+        _ => {
+            let Some(s) = solid.as_ref() else {
+                return Err(CoreError::invalid(format!("init.n2_mode {:?} needs a prior mesh", cfg.n2_mode)));
+            };
+            let prior_sil = silhouettes(s, views);
+            masks
+                .iter()
+                .zip(&prior_sil)
+                .map(|(m, p)| m.minus(&p.dilated(cfg.prior_dilation_px)).dilated(cfg.residual_dilation_px))
+                .collect()
+        }
+    };
+    let intersect = cfg.n2_mode != SeedMode::ResidualUnion;
+    let exclude = if cfg.n2_mode == SeedMode::AllViewsIntersect { None } else { solid.as_ref() };
+    let mut scored = back_project(&grid, views, &support, images, exclude, intersect);
+    scored.sort_by(|a, b| b.0.total_cmp(&a.0));
+    scored.truncate(cfg.n2);
+    Ok(scored
+        .into_iter()
+        .map(|(_, c)| {
+            c + DVec3::new(rng.random_range(-0.5..0.5), rng.random_range(-0.5..0.5), rng.random_range(-0.5..0.5)) * h
+        })
+        .collect())
+}
+
+/// Isotropic scale (mm) of each point: sqrt of the mean squared distance to its `k` nearest
+/// other points (a point alone gets `fallback`).
+pub fn knn_scales(points: &[DVec3], k: usize, fallback: f64) -> Vec<f64> {
+    if points.len() < 2 {
+        return vec![fallback; points.len()];
+    }
+    let pts: Vec<[f64; 3]> = points.iter().map(|p| p.to_array()).collect();
+    let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&pts).expect("finite points");
+    let kk = (k + 1).min(points.len());
+    let n = std::num::NonZero::new(kk).expect("k + 1 ≥ 1");
+    tree.query_batch(&pts)
+        .nearest_n::<SquaredEuclidean<f64>>(n)
+        .execute()
+        .into_iter()
+        .map(|res| {
+            let d: Vec<f64> = res.iter().skip(1).map(|r| r.distance).collect();
+            if d.is_empty() { fallback } else { (d.iter().sum::<f64>() / d.len() as f64).sqrt() }
+        })
+        .collect()
+}
+
+/// The initial Gaussians and what went into them.
+#[derive(Debug, Clone)]
+pub struct Initialisation {
+    pub gaussians: GaussianInit,
+    /// How many came from the prior (first) and from the images (after).
+    pub n1: usize,
+    pub n2: usize,
+}
+
+/// N1 + N2 centres with kNN isotropic scales and identity rotations.
+#[allow(clippy::too_many_arguments)]
+pub fn initialise(
+    cfg: &InitConfig,
+    views: &[ConeBeamView],
+    images: &[Image],
+    prior: Option<&TriMesh>,
+    bounds: &BoxMm,
+    voxel_mm: f64,
+    scale_bounds: ScaleBounds,
+    seed: u64,
+) -> Result<Initialisation> {
+    let mut centres: Vec<DVec3> = Vec::new();
+    let use_prior = cfg.n2_mode != SeedMode::AllViewsIntersect;
+    if cfg.n1 > 0 && use_prior {
+        let p = prior.ok_or_else(|| CoreError::invalid("init.n1 > 0 needs a prior mesh (or set init.n1 = 0)"))?;
+        centres.extend(sample_surface(p, cfg.n1, seed));
+    }
+    let n1 = centres.len();
+    centres.extend(n2_seeds(cfg, views, images, prior.filter(|_| use_prior), bounds, voxel_mm, seed)?);
+    let n2 = centres.len() - n1;
+    if centres.is_empty() {
+        return Err(CoreError::invalid("initialisation produced no Gaussian (empty prior and no image support)"));
+    }
+    let scales = knn_scales(&centres, cfg.knn, voxel_mm);
+    let mut g = GaussianInit::default();
+    for (c, s) in centres.iter().zip(scales) {
+        g.means.extend([c.x as f32, c.y as f32, c.z as f32]);
+        let s = (s as f32).clamp(scale_bounds.min_mm, scale_bounds.max_mm);
+        let raw = scale_bounds.inverse(s);
+        g.raw_scales.extend([raw; 3]);
+        g.rotations.extend([1.0, 0.0, 0.0, 0.0]);
+    }
+    Ok(Initialisation { gaussians: g, n1, n2 })
+}

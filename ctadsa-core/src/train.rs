@@ -1,0 +1,516 @@
+//! The optimisation loop: render the model into the DSA views, compute the losses, take an Adam
+//! step with per-group exponentially decaying learning rates, densify, checkpoint and resume.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use burn::lr_scheduler::constant::ConstantLr;
+use burn::lr_scheduler::module_lr_scheduler::{ModuleLearningRate, ModuleLrScheduler};
+use burn::module::{Module, ParamGroup};
+use burn::optim::decay::WeightDecayConfig;
+use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
+use burn::tensor::{Device, Int, Tensor, TensorData};
+use ctadsa_render::{ConeBeamView, RenderSettings, ViewSet, render_with_stats};
+use glam::DVec3;
+use rand::seq::SliceRandom;
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+
+use crate::case::Case;
+use crate::case::images::Image;
+use crate::config::Config;
+use crate::densify::{self, DensifyStats};
+use crate::error::{CoreError, Result, read_file, write_file};
+use crate::init::initialise;
+use crate::loss::{LossTargets, PriorAnchor};
+use crate::mesh::TriMesh;
+use crate::mesh::sample::sample_surface;
+use crate::model::{GaussianInit, GaussianModel, ScaleBounds, host_vec};
+use crate::volume::BoxMm;
+
+/// Seconds spent per stage in one step.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct StageTimes {
+    pub field: f64,
+    pub render: f64,
+    pub losses: f64,
+    pub backward: f64,
+    pub optimizer: f64,
+    pub densify: f64,
+}
+
+/// One step's numbers.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct StepLog {
+    /// Iterations done after this step.
+    pub iteration: usize,
+    pub loss: f64,
+    pub l1: f64,
+    pub ssim: f64,
+    pub fn_loss: f64,
+    pub pa_loss: f64,
+    pub gaussians: usize,
+    pub times: StageTimes,
+}
+
+/// What a checkpoint stores besides the model and optimizer.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+struct CheckpointState {
+    iteration: usize,
+    gaussians: usize,
+    n1: usize,
+    n2: usize,
+    history: Vec<StepLog>,
+}
+
+/// The case's images and views after the run's view selection and binning.
+pub fn prepare_views(case: &Case, cfg: &Config) -> Result<(ViewSet, Vec<Image>)> {
+    let case = if cfg.run.views.is_empty() { case.clone() } else { case.select_views(&cfg.run.views)? };
+    let b = cfg.run.image_binning.max(1);
+    let views: Vec<ConeBeamView> =
+        case.views.views().iter().map(|v| v.binned(b)).collect::<std::result::Result<_, _>>()?;
+    let images: Vec<Image> = case.images.iter().map(|img| bin_image(img, b)).collect();
+    Ok((ViewSet::new(views)?, images))
+}
+
+/// Average-pools an image by `b × b` (line integrals keep their units).
+pub fn bin_image(img: &Image, b: u32) -> Image {
+    if b <= 1 {
+        return img.clone();
+    }
+    let (w, h) = ((img.width / b).max(1), (img.height / b).max(1));
+    let mut data = vec![0.0f32; (w * h) as usize];
+    for r in 0..h {
+        for c in 0..w {
+            let mut s = 0.0;
+            for dr in 0..b {
+                for dc in 0..b {
+                    let (rr, cc) = ((r * b + dr).min(img.height - 1), (c * b + dc).min(img.width - 1));
+                    s += img.data[(rr * img.width + cc) as usize];
+                }
+            }
+            data[(r * w + c) as usize] = s / (b * b) as f32;
+        }
+    }
+    Image { width: w, height: h, data }
+}
+
+/// Density that makes the initial renders carry the images' total intensity: the detector
+/// integral of a blob is its mass over depth² (normalised image coordinates).
+pub fn estimate_initial_density(views: &ViewSet, images: &[Image], init: &GaussianInit, bounds: ScaleBounds) -> f64 {
+    let mut masses = Vec::new();
+    for (v, img) in views.views().iter().zip(images) {
+        let [fx, fy] = v.intrinsics().focal_px;
+        let depth = v.source_mm().length();
+        let sum: f64 = img.data.iter().map(|&x| x.max(0.0) as f64).sum();
+        masses.push(sum / (fx * fy) * depth * depth);
+    }
+    let target_mass = masses.iter().sum::<f64>() / masses.len().max(1) as f64;
+    let unit_mass: f64 = init
+        .raw_scales
+        .chunks_exact(3)
+        .map(|r| {
+            let s: f64 = r
+                .iter()
+                .map(|&x| (bounds.max_mm - bounds.min_mm) as f64 / (1.0 + (-x as f64).exp()) + bounds.min_mm as f64)
+                .product();
+            (2.0 * std::f64::consts::PI).powf(1.5) * s
+        })
+        .sum();
+    if unit_mass > 0.0 && target_mass > 0.0 { target_mass / unit_mass } else { 1.0 }
+}
+
+/// A training run in memory.
+pub struct Trainer {
+    pub cfg: Config,
+    pub device: Device,
+    pub views: ViewSet,
+    pub images: Vec<Image>,
+    targets: LossTargets,
+    anchor: Option<PriorAnchor>,
+    model: Option<GaussianModel>,
+    optim: ModuleOptimizer,
+    pub stats: DensifyStats,
+    /// Iterations done.
+    pub iteration: usize,
+    pub history: Vec<StepLog>,
+    pub working_box: BoxMm,
+    pub voxel_mm: f64,
+    pub n1: usize,
+    pub n2: usize,
+    pub settings: RenderSettings,
+}
+
+fn new_optimizer(cfg: &Config) -> Result<ModuleOptimizer> {
+    let eps = cfg.optim.epsilon as f32;
+    let field_adam = AdamConfig::new()
+        .with_epsilon(eps)
+        .with_weight_decay(
+            (cfg.optim.field_weight_decay > 0.0).then(|| WeightDecayConfig::new(cfg.optim.field_weight_decay as f32)),
+        )
+        .build();
+    Ok(AdamConfig::new().with_epsilon(eps).init().with_group(ParamGroup::from_predicate("field"), field_adam, None))
+}
+
+/// `init · (final / init)^(t / T)` (linear when one end is 0).
+pub fn decayed(range: [f64; 2], t: usize, total: usize) -> f64 {
+    let f = (t as f64 / total.max(1) as f64).clamp(0.0, 1.0);
+    let [a, b] = range;
+    if a > 0.0 && b > 0.0 { a * (b / a).powf(f) } else { a + (b - a) * f }
+}
+
+impl Trainer {
+    /// Initialises a run from a case.
+    pub fn new(case: &Case, cfg: Config, device: Device) -> Result<Self> {
+        cfg.validate()?;
+        let (views, images) = prepare_views(case, &cfg)?;
+        let prior = case.prior_mesh()?;
+        let working_box = case.file.volume.bounds();
+        let voxel_mm = case.file.volume.voxel_mm;
+        let bounds = ScaleBounds::from_voxel(voxel_mm, cfg.model.scale_min_voxels, cfg.model.scale_max_voxels);
+        let init = initialise(
+            &cfg.init,
+            views.views(),
+            &images,
+            prior.as_ref(),
+            &working_box,
+            voxel_mm,
+            bounds,
+            cfg.run.seed,
+        )?;
+        let rho0 = if cfg.model.initial_density > 0.0 {
+            cfg.model.initial_density
+        } else {
+            estimate_initial_density(&views, &images, &init.gaussians, bounds)
+        };
+        let size = working_box.size_mm();
+        let field = GaussianModel::new_field(
+            &cfg.field,
+            working_box.min_mm.map(|v| v as f32),
+            size.map(|v| v as f32),
+            rho0 as f32,
+            &device,
+        );
+        let model = GaussianModel::new(&init.gaussians, field, bounds, &device);
+        Self::assemble(cfg, device, views, images, prior.as_ref(), model, working_box, voxel_mm, init.n1, init.n2)
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn assemble(
+        cfg: Config,
+        device: Device,
+        views: ViewSet,
+        images: Vec<Image>,
+        prior: Option<&TriMesh>,
+        model: GaussianModel,
+        working_box: BoxMm,
+        voxel_mm: f64,
+        n1: usize,
+        n2: usize,
+    ) -> Result<Self> {
+        let targets = LossTargets::new(&images, cfg.loss.fn_tau, &device);
+        let anchor = prior.and_then(|p| {
+            let n = ((p.area_mm2() / (0.05 * 0.05)) as usize).clamp(20_000, 400_000);
+            PriorAnchor::new(&sample_surface(p, n, cfg.run.seed ^ 0xA11C), cfg.loss.pa_radius_mm, cfg.loss.pa_k)
+        });
+        let n = model.len();
+        let settings = RenderSettings { k_sigma: cfg.model.k_sigma };
+        Ok(Self {
+            optim: new_optimizer(&cfg)?,
+            cfg,
+            device,
+            views,
+            images,
+            targets,
+            anchor,
+            model: Some(model),
+            stats: DensifyStats::new(n),
+            iteration: 0,
+            history: Vec::new(),
+            working_box,
+            voxel_mm,
+            n1,
+            n2,
+            settings,
+        })
+    }
+
+    /// The current model.
+    pub fn model(&self) -> &GaussianModel {
+        self.model.as_ref().expect("model present between steps")
+    }
+
+    fn learning_rates(&self) -> ModuleLearningRate {
+        let (t, total) = (self.iteration, self.cfg.run.iterations);
+        let o = &self.cfg.optim;
+        ModuleLrScheduler::new(ConstantLr::new(decayed(o.lr_field, t, total)))
+            .with_group(ParamGroup::from_path("means"), ConstantLr::new(decayed(o.lr_means, t, total)))
+            .with_group(ParamGroup::from_path("raw_scales"), ConstantLr::new(decayed(o.lr_scales, t, total)))
+            .with_group(ParamGroup::from_path("rotations"), ConstantLr::new(decayed(o.lr_rotations, t, total)))
+            .step()
+    }
+
+    fn step_views(&self) -> Vec<usize> {
+        let v = self.views.len();
+        let k = self.cfg.run.views_per_step;
+        if k == 0 || k >= v {
+            return (0..v).collect();
+        }
+        let mut rng = ChaCha8Rng::seed_from_u64(self.cfg.run.seed ^ (self.iteration as u64).wrapping_mul(0x2545_F491));
+        let mut all: Vec<usize> = (0..v).collect();
+        all.shuffle(&mut rng);
+        all.truncate(k);
+        all.sort_unstable();
+        all
+    }
+
+    fn densify_active(&self) -> bool {
+        let d = &self.cfg.densify;
+        d.enabled && self.iteration < d.until
+    }
+
+    /// One optimisation step.
+    pub fn step(&mut self) -> Result<StepLog> {
+        let cfg = self.cfg.clone();
+        let t = self.iteration;
+        let lr = self.learning_rates();
+        let idx = self.step_views();
+        let (views, targets) = if idx.len() == self.views.len() {
+            (self.views.clone(), self.targets.clone())
+        } else {
+            let it = Tensor::<1, Int>::from_data(
+                TensorData::new(idx.iter().map(|&i| i as i64).collect::<Vec<_>>(), [idx.len()]),
+                &self.device,
+            );
+            (self.views.select(&idx)?, self.targets.select(it))
+        };
+        let model = self.model.take().expect("model present between steps");
+        let n = model.len();
+        let mut times = StageTimes::default();
+        let clock = Instant::now();
+        let densities = model.field.forward(model.means.val());
+        let gaussians = ctadsa_render::Gaussians {
+            means: model.means.val(),
+            scales: model.scales(),
+            rotations: model.rotations.val(),
+            densities,
+        };
+        times.field = clock.elapsed().as_secs_f64();
+        let clock = Instant::now();
+        let probe = Tensor::<2>::zeros([n, 2], &self.device).require_grad();
+        let image = render_with_stats(&gaussians, probe.clone(), &views, &self.settings)?;
+        times.render = clock.elapsed().as_secs_f64();
+        let clock = Instant::now();
+        let (render_loss, l1, ssim) = targets.render_loss(image.clone(), cfg.loss.lambda_dssim);
+        let mut loss = render_loss;
+        let mut fn_value = 0.0;
+        if t >= cfg.loss.fn_start && cfg.loss.fn_weight > 0.0 {
+            let f = targets.fn_loss(image, cfg.loss.fn_margin);
+            fn_value = f.clone().into_scalar::<f32>() as f64;
+            loss = loss + f.mul_scalar(cfg.loss.fn_weight);
+        }
+        let mut pa_value = 0.0;
+        if let (true, Some(anchor)) = (t >= cfg.loss.pa_start && cfg.loss.pa_weight > 0.0, &self.anchor) {
+            let mut rng = ChaCha8Rng::seed_from_u64(cfg.run.seed ^ 0x9A ^ (t as u64).wrapping_mul(0x9E37_79B9));
+            let m = if cfg.loss.pa_samples == 0 { n } else { cfg.loss.pa_samples.min(n) };
+            let sample: Vec<i64> =
+                if m == n { (0..n as i64).collect() } else { (0..m).map(|_| rng.random_range(0..n as i64)).collect() };
+            let sel = Tensor::<1, Int>::from_data(TensorData::new(sample.clone(), [m]), &self.device);
+            let chosen = model.means.val().select(0, sel);
+            let host: Vec<f32> = host_vec(chosen.clone());
+            let (keep, tgt) = anchor.targets(&host);
+            if !keep.is_empty() {
+                let k = keep.len();
+                let ki = Tensor::<1, Int>::from_data(
+                    TensorData::new(keep.iter().map(|&i| i as i64).collect::<Vec<_>>(), [k]),
+                    &self.device,
+                );
+                let target = Tensor::<2>::from_data(TensorData::new(tgt, [k, 3]), &self.device);
+                let pa = (chosen.select(0, ki) - target).powi_scalar(2).sum_dim(1).mean();
+                pa_value = pa.clone().into_scalar::<f32>() as f64;
+                loss = loss + pa.mul_scalar(cfg.loss.pa_weight);
+            }
+        }
+        let loss_value = loss.clone().into_scalar::<f32>() as f64;
+        if !loss_value.is_finite() {
+            self.model = Some(model);
+            return Err(CoreError::invalid(format!("loss became {loss_value} at iteration {t}")));
+        }
+        times.losses = clock.elapsed().as_secs_f64();
+        let clock = Instant::now();
+        let grads = loss.backward();
+        if self.densify_active() {
+            if let Some(g) = probe.grad(&grads) {
+                let host: Vec<f32> = host_vec(g);
+                self.stats.add(&host);
+            }
+        }
+        let grads = GradientsParams::from_grads(grads, &model);
+        times.backward = clock.elapsed().as_secs_f64();
+        let clock = Instant::now();
+        let model = self.optim.step(lr, model, grads);
+        times.optimizer = clock.elapsed().as_secs_f64();
+        self.model = Some(model);
+        self.iteration += 1;
+        let d = &cfg.densify;
+        if d.enabled && self.iteration > d.from && self.iteration <= d.until && self.iteration % d.every == 0 {
+            let clock = Instant::now();
+            self.densify()?;
+            times.densify = clock.elapsed().as_secs_f64();
+        }
+        let log = StepLog {
+            iteration: self.iteration,
+            loss: loss_value,
+            l1: l1.into_scalar::<f32>() as f64,
+            ssim: ssim.into_scalar::<f32>() as f64,
+            fn_loss: fn_value,
+            pa_loss: pa_value,
+            gaussians: self.model().len(),
+            times,
+        };
+        self.history.push(log);
+        Ok(log)
+    }
+
+    /// Densification now (clone, split, prune), keeping parameters and Adam moments consistent.
+    pub fn densify(&mut self) -> Result<densify::DensifyPlan> {
+        let model = self.model.take().expect("model present");
+        let params = model.to_init();
+        let densities: Vec<f32> = host_vec(model.valid().densities());
+        let plan = densify::plan(
+            &params,
+            &densities,
+            &self.stats,
+            &self.cfg.densify,
+            model.bounds,
+            &self.working_box,
+            self.voxel_mm,
+            self.iteration,
+            self.cfg.run.seed,
+        );
+        let optim = std::mem::replace(&mut self.optim, new_optimizer(&self.cfg)?);
+        let (model, optim) = densify::apply(model, optim, &plan, &self.device)?;
+        self.stats = DensifyStats::new(model.len());
+        self.model = Some(model);
+        self.optim = optim;
+        Ok(plan)
+    }
+
+    /// Writes a checkpoint folder (model, optimizer, state); returns its path.
+    pub fn save_checkpoint(&self, dir: &Path) -> Result<PathBuf> {
+        let ck = dir.join(format!("ckpt-{:07}", self.iteration));
+        std::fs::create_dir_all(&ck).map_err(|e| CoreError::io(&ck, e))?;
+        self.model()
+            .clone()
+            .save_file(ck.join("model.bpk"))
+            .map_err(|e| CoreError::format(&ck.join("model.bpk"), format!("cannot save model: {e:?}")))?;
+        self.optim
+            .save(ck.join("optim.bpk"))
+            .map_err(|e| CoreError::format(&ck.join("optim.bpk"), format!("cannot save optimizer: {e:?}")))?;
+        let stats: Vec<u8> = self.stats.sum.iter().chain(&self.stats.count).flat_map(|v| v.to_le_bytes()).collect();
+        write_file(&ck.join("stats.bin"), &stats)?;
+        let state = CheckpointState {
+            iteration: self.iteration,
+            gaussians: self.model().len(),
+            n1: self.n1,
+            n2: self.n2,
+            history: self.history.clone(),
+        };
+        write_file(&ck.join("state.json"), serde_json::to_string(&state).unwrap_or_default().as_bytes())?;
+        Ok(ck)
+    }
+
+    /// Restores a run from a checkpoint folder written by [`Trainer::save_checkpoint`], with the
+    /// same case and configuration.
+    pub fn resume(case: &Case, cfg: Config, device: Device, checkpoint: &Path) -> Result<Self> {
+        cfg.validate()?;
+        let state_path = checkpoint.join("state.json");
+        let state: CheckpointState = serde_json::from_slice(&read_file(&state_path)?)
+            .map_err(|e| CoreError::format(&state_path, format!("invalid checkpoint state: {e}")))?;
+        let (views, images) = prepare_views(case, &cfg)?;
+        let prior = case.prior_mesh()?;
+        let working_box = case.file.volume.bounds();
+        let voxel_mm = case.file.volume.voxel_mm;
+        let bounds = ScaleBounds::from_voxel(voxel_mm, cfg.model.scale_min_voxels, cfg.model.scale_max_voxels);
+        let n = state.gaussians;
+        let skeleton_init =
+            GaussianInit { means: vec![0.0; 3 * n], raw_scales: vec![0.0; 3 * n], rotations: vec![0.0; 4 * n] };
+        let size = working_box.size_mm();
+        let field = GaussianModel::new_field(
+            &cfg.field,
+            working_box.min_mm.map(|v| v as f32),
+            size.map(|v| v as f32),
+            1.0,
+            &device,
+        );
+        let skeleton = GaussianModel::new(&skeleton_init, field, bounds, &device);
+        let model_path = checkpoint.join("model.bpk");
+        let model = skeleton
+            .try_load_file(&model_path)
+            .map_err(|e| CoreError::format(&model_path, format!("cannot load model (same config?): {e:?}")))?;
+        let mut t = Self::assemble(
+            cfg,
+            device,
+            views,
+            images,
+            prior.as_ref(),
+            model,
+            working_box,
+            voxel_mm,
+            state.n1,
+            state.n2,
+        )?;
+        let optim_path = checkpoint.join("optim.bpk");
+        let optim = std::mem::replace(&mut t.optim, new_optimizer(&t.cfg)?);
+        t.optim = optim
+            .load(&optim_path)
+            .map_err(|e| CoreError::format(&optim_path, format!("cannot load optimizer state: {e:?}")))?;
+        let stats = read_file(&checkpoint.join("stats.bin"))?;
+        let vals: Vec<f32> = stats.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
+        if vals.len() == 2 * n {
+            t.stats = DensifyStats { sum: vals[..n].to_vec(), count: vals[n..].to_vec() };
+        }
+        t.iteration = state.iteration;
+        t.history = state.history;
+        Ok(t)
+    }
+
+    /// The latest checkpoint folder under `dir`, if any.
+    pub fn latest_checkpoint(dir: &Path) -> Option<PathBuf> {
+        let mut cks: Vec<PathBuf> = std::fs::read_dir(dir)
+            .ok()?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| {
+                p.file_name().and_then(|n| n.to_str()).is_some_and(|n| n.starts_with("ckpt-"))
+                    && p.join("state.json").exists()
+            })
+            .collect();
+        cks.sort();
+        cks.pop()
+    }
+
+    /// Host copy of the Gaussians: `(means, scales, rotations, densities)` row-major.
+    pub fn host_gaussians(&self) -> (Vec<f32>, Vec<f32>, Vec<f32>, Vec<f32>) {
+        let m = self.model().valid();
+        let v2 = |t: Tensor<2>| host_vec(t);
+        let d = host_vec(m.densities());
+        (v2(m.means.val()), v2(m.scales()), v2(m.rotations.val()), d)
+    }
+
+    /// Final renders of all views `[V][H·W]`.
+    pub fn render_all(&self) -> Result<Vec<Vec<f32>>> {
+        let m = self.model().valid();
+        let img = ctadsa_render::render(&m.gaussians(), &self.views, &self.settings)?;
+        let (w, h) = self.views.image_size();
+        let flat: Vec<f32> = host_vec(img);
+        Ok(flat.chunks((w * h) as usize).map(<[f32]>::to_vec).collect())
+    }
+
+    /// Centre of mass of the Gaussians (mm), for quick diagnostics.
+    pub fn centroid(&self) -> DVec3 {
+        let (m, ..) = self.host_gaussians();
+        let n = (m.len() / 3).max(1) as f64;
+        m.chunks_exact(3).fold(DVec3::ZERO, |acc, c| acc + DVec3::new(c[0] as f64, c[1] as f64, c[2] as f64)) / n
+    }
+}

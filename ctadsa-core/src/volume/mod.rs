@@ -1,0 +1,168 @@
+//! Voxel volumes in world millimetres: label volumes, density volumes, and their I/O.
+
+pub mod edt;
+pub mod nifti_io;
+pub mod rasterize;
+
+use glam::{DMat4, DVec3, DVec4};
+use serde::{Deserialize, Serialize};
+
+use crate::error::{CoreError, Result};
+
+/// An axis-aligned box (mm).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct BoxMm {
+    pub min_mm: [f64; 3],
+    pub max_mm: [f64; 3],
+}
+
+impl BoxMm {
+    /// Size along each axis (mm).
+    pub fn size_mm(&self) -> [f64; 3] {
+        [0, 1, 2].map(|a| self.max_mm[a] - self.min_mm[a])
+    }
+
+    /// The box grown by `margin_mm` on every side.
+    pub fn padded(&self, margin_mm: f64) -> Self {
+        Self { min_mm: self.min_mm.map(|v| v - margin_mm), max_mm: self.max_mm.map(|v| v + margin_mm) }
+    }
+
+    /// Whether `p` is inside (boundary included).
+    pub fn contains(&self, p: DVec3) -> bool {
+        (0..3).all(|a| p[a] >= self.min_mm[a] && p[a] <= self.max_mm[a])
+    }
+}
+
+/// A regular axis-aligned grid: voxel `(i, j, k)` has its centre at
+/// `origin_mm + ((i, j, k) + ½)·spacing_mm` (`origin_mm` is the outer corner of voxel 0).
+/// Arrays on it are `[X, Y, Z]` with `z` fastest.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Grid {
+    pub dims: [usize; 3],
+    pub spacing_mm: [f64; 3],
+    pub origin_mm: [f64; 3],
+}
+
+impl Grid {
+    /// A grid of isotropic `voxel_mm` voxels covering `bounds` (rounded up to whole voxels,
+    /// centred on the box).
+    pub fn covering(bounds: &BoxMm, voxel_mm: f64) -> Result<Self> {
+        if !(voxel_mm.is_finite() && voxel_mm > 0.0) {
+            return Err(CoreError::invalid(format!("voxel size must be positive, got {voxel_mm} mm")));
+        }
+        let size = bounds.size_mm();
+        if !size.iter().all(|s| s.is_finite() && *s >= 0.0) {
+            return Err(CoreError::invalid(format!("degenerate box {bounds:?}")));
+        }
+        let dims = size.map(|s| ((s / voxel_mm).ceil() as usize).max(1));
+        let origin_mm = [0, 1, 2].map(|a| {
+            let centre = 0.5 * (bounds.min_mm[a] + bounds.max_mm[a]);
+            centre - 0.5 * dims[a] as f64 * voxel_mm
+        });
+        Ok(Self { dims, spacing_mm: [voxel_mm; 3], origin_mm })
+    }
+
+    /// A grid of `n` voxels along the longest side of `bounds` (cubic voxels).
+    pub fn with_longest_side(bounds: &BoxMm, n: usize) -> Result<Self> {
+        let longest = bounds.size_mm().into_iter().fold(0.0f64, f64::max);
+        if n == 0 || longest <= 0.0 {
+            return Err(CoreError::invalid(format!("cannot put {n} voxels on a box of size {longest} mm")));
+        }
+        Self::covering(bounds, longest / n as f64)
+    }
+
+    /// Number of voxels.
+    pub fn len(&self) -> usize {
+        self.dims.iter().product()
+    }
+
+    /// Whether the grid has no voxel.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Linear index of `(i, j, k)`.
+    #[inline]
+    pub fn index(&self, i: usize, j: usize, k: usize) -> usize {
+        (i * self.dims[1] + j) * self.dims[2] + k
+    }
+
+    /// Centre of voxel `(i, j, k)` (mm).
+    #[inline]
+    pub fn centre_mm(&self, i: usize, j: usize, k: usize) -> DVec3 {
+        DVec3::new(
+            self.origin_mm[0] + (i as f64 + 0.5) * self.spacing_mm[0],
+            self.origin_mm[1] + (j as f64 + 0.5) * self.spacing_mm[1],
+            self.origin_mm[2] + (k as f64 + 0.5) * self.spacing_mm[2],
+        )
+    }
+
+    /// The box the grid covers.
+    pub fn bounds(&self) -> BoxMm {
+        BoxMm {
+            min_mm: self.origin_mm,
+            max_mm: [0, 1, 2].map(|a| self.origin_mm[a] + self.dims[a] as f64 * self.spacing_mm[a]),
+        }
+    }
+
+    /// Matrix from voxel index (of the voxel centre) to world mm.
+    pub fn index_to_world(&self) -> DMat4 {
+        let s = self.spacing_mm;
+        DMat4::from_cols(
+            DVec4::new(s[0], 0.0, 0.0, 0.0),
+            DVec4::new(0.0, s[1], 0.0, 0.0),
+            DVec4::new(0.0, 0.0, s[2], 0.0),
+            DVec4::new(
+                self.origin_mm[0] + 0.5 * s[0],
+                self.origin_mm[1] + 0.5 * s[1],
+                self.origin_mm[2] + 0.5 * s[2],
+                1.0,
+            ),
+        )
+    }
+
+    /// The same grid for the renderer (f32).
+    pub fn to_render_grid(&self) -> Result<ctadsa_render::VoxelGrid> {
+        Ok(ctadsa_render::VoxelGrid {
+            origin_mm: self.origin_mm.map(|v| v as f32),
+            spacing_mm: self.spacing_mm.map(|v| v as f32),
+            dims: [0, 1, 2].map(|a| self.dims[a] as u32),
+        })
+    }
+}
+
+/// A volume of voxel values on a [`Grid`], with the voxel-index → world matrix it came with
+/// (for grids we make, [`Grid::index_to_world`]; for NIfTI files, the file's affine).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Volume<T> {
+    pub grid: Grid,
+    /// Voxel (centre) index → world mm. May include rotations/flips for volumes read from files.
+    pub index_to_world: DMat4,
+    /// Values, `[X, Y, Z]`, `z` fastest.
+    pub data: Vec<T>,
+}
+
+impl<T: Copy + Default> Volume<T> {
+    /// A volume of default values on `grid`.
+    pub fn zeros(grid: Grid) -> Self {
+        Self { grid, index_to_world: grid.index_to_world(), data: vec![T::default(); grid.len()] }
+    }
+
+    /// Value at `(i, j, k)`.
+    #[inline]
+    pub fn get(&self, i: usize, j: usize, k: usize) -> T {
+        self.data[self.grid.index(i, j, k)]
+    }
+
+    /// Maps every value.
+    pub fn map<U>(&self, f: impl Fn(T) -> U) -> Volume<U> {
+        Volume { grid: self.grid, index_to_world: self.index_to_world, data: self.data.iter().map(|&v| f(v)).collect() }
+    }
+}
+
+impl Volume<u8> {
+    /// Number of non-zero voxels.
+    pub fn count_nonzero(&self) -> usize {
+        self.data.iter().filter(|&&v| v != 0).count()
+    }
+}
