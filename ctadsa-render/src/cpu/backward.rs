@@ -56,18 +56,24 @@ fn row_sums(
     let density = p.amp * (1.0 / SQRT_2PI);
     let n = (c1 - c0 + 1) as usize;
     let mut j = 0;
+    let lane_col: [f32; LANES] = std::array::from_fn(|l| l as f32);
     while j < n {
+        let take = (n - j).min(LANES);
+        let first = (c0 as usize + j) as f32;
+        let mut g_lane = [0.0f32; LANES];
+        let start = c0 as usize + j;
+        g_lane[..take].copy_from_slice(&grad_row[start..start + take]);
         let mut lane = [[0.0f32; LANES]; 10];
         for l in 0..LANES {
-            let valid = j + l < n;
-            let g = if valid { grad_row[c0 as usize + j + l] } else { 0.0 };
-            let dx = ((c0 + (j + l) as i32) as f32 - p.u0) * vp.inv_fx;
+            let g = g_lane[l];
+            let dx = (first + lane_col[l] - p.u0) * vp.inv_fx;
             let alpha = re.a0 + dx * (re.a1 + dx * re.a2);
             let quad = re.n0 + dx * (re.n1 + dx * re.n2);
             let xn = p.x0 + dx;
             let r2 = re.r0 + xn * xn;
             let inv_a = 1.0 / alpha;
             let unit = SQRT_2PI * (r2 * inv_a).sqrt() * exp_neg(-0.5 * quad * inv_a);
+            let g = if p.sees(quad, alpha) { g } else { 0.0 };
             let gu = g * unit;
             let gi = gu * density;
             // β = (Qũ)·Δ / α, Qũ = g_w + Q Δ.
@@ -99,14 +105,13 @@ fn row_sums(
 }
 
 /// Walks the footprint of one projected Gaussian over the upstream gradient `grad` (`H × W`).
+#[inline(always)]
 fn footprint_sums(p: &Projected, vp: &ViewParams, grad: &[f32]) -> Sums {
     let w = vp.width as usize;
     let mut acc = [[0.0f32; LANES]; 10];
     for row in p.row_min..=p.row_max {
-        if let Some((c0, c1)) = p.row_span(row, vp, p.col_min, p.col_max) {
-            let grad_row = &grad[row as usize * w..(row as usize + 1) * w];
-            row_sums(p, vp, row, c0, c1, grad_row, &mut acc);
-        }
+        let grad_row = &grad[row as usize * w..(row as usize + 1) * w];
+        row_sums(p, vp, row, p.col_min, p.col_max, grad_row, &mut acc);
     }
     let s: [f32; 10] = acc.map(|a| a.iter().sum());
     Sums { unit: s[0], e: [s[1], s[2], s[3]], m: [s[4], s[5], s[6], s[7], s[8], s[9]] }
@@ -127,6 +132,7 @@ pub struct WorldSums {
 }
 
 /// Adds the view's camera-frame sums to the world-frame sums.
+#[inline(always)]
 pub fn accumulate_view(
     ws: &mut WorldSums,
     unit: f32,
@@ -171,6 +177,7 @@ pub fn accumulate_view(
 
 /// Chains world-frame `∂L/∂Q` to the (clamped) scales and the (unnormalised) quaternion:
 /// `∂L/∂s_k = −2 s_k⁻³ r_kᵀ G r_k`, `∂L/∂R = 2 G R S⁻²`, then through `R(q̂)` and `q̂ = q/|q|`.
+#[inline(always)]
 pub fn chain_precision(scale: [f32; 3], quat: [f32; 4], g: &Sym3) -> ([f32; 3], [f32; 4]) {
     let (Some((s, inside)), Some((r, qn, norm))) = (clamp_scales(scale), quat_to_mat(quat)) else {
         return ([0.0; 3], [0.0; 4]);
@@ -209,30 +216,44 @@ pub fn chain_precision(scale: [f32; 3], quat: [f32; 4], g: &Sym3) -> ([f32; 3], 
     (d_scale, d_quat)
 }
 
+/// One Gaussian's gradients: `(mean, scale, quaternion, density, [statistic, visible views])`.
+type GaussianGrad = ([f32; 3], [f32; 3], [f32; 4], f32, [f32; 2]);
+
+/// Gradients of Gaussians `first..first + out.len()` over all views.
+#[multiversion::multiversion(targets("x86_64+avx2+fma+sse4.1", "x86_64+sse4.1"))]
+fn gradients_chunk(
+    g: &HostGaussians,
+    first: usize,
+    views: &[ViewParams],
+    k_sigma: f32,
+    grad: &[f32],
+    out: &mut [GaussianGrad],
+) {
+    for (j, o) in out.iter_mut().enumerate() {
+        let (mean, scale, quat, density) = g.get(first + j);
+        let mut ws = WorldSums::default();
+        let mut offset = 0;
+        for vp in views {
+            let size = (vp.width * vp.height) as usize;
+            let view_grad = &grad[offset..offset + size];
+            offset += size;
+            let Some((p, frame)) = project(mean, scale, quat, density, vp, k_sigma) else {
+                continue;
+            };
+            let s = footprint_sums(&p, vp, view_grad);
+            accumulate_view(&mut ws, s.unit, s.e, s.m, &frame, &p, vp);
+        }
+        let (d_scale, d_quat) = chain_precision(scale, quat, &ws.precision);
+        *o = (ws.mean, d_scale, d_quat, ws.density, [ws.stat, ws.visible]);
+    }
+}
+
 /// Backward pass over all views: `grad` is `∂L/∂image`, `[V, H, W]`.
 pub fn render_backward(g: &HostGaussians, views: &[ViewParams], k_sigma: f32, grad: &[f32]) -> HostGrads {
     let n = g.len();
-    let per: Vec<([f32; 3], [f32; 3], [f32; 4], f32, [f32; 2])> = (0..n)
-        .into_par_iter()
-        .with_min_len(64)
-        .map(|i| {
-            let (mean, scale, quat, density) = g.get(i);
-            let mut ws = WorldSums::default();
-            let mut offset = 0;
-            for vp in views {
-                let size = (vp.width * vp.height) as usize;
-                let view_grad = &grad[offset..offset + size];
-                offset += size;
-                let Some((p, frame)) = project(mean, scale, quat, density, vp, k_sigma) else {
-                    continue;
-                };
-                let s = footprint_sums(&p, vp, view_grad);
-                accumulate_view(&mut ws, s.unit, s.e, s.m, &frame, &p, vp);
-            }
-            let (d_scale, d_quat) = chain_precision(scale, quat, &ws.precision);
-            (ws.mean, d_scale, d_quat, ws.density, [ws.stat, ws.visible])
-        })
-        .collect();
+    const CHUNK: usize = 256;
+    let mut per: Vec<GaussianGrad> = vec![Default::default(); n];
+    per.par_chunks_mut(CHUNK).enumerate().for_each(|(c, out)| gradients_chunk(g, c * CHUNK, views, k_sigma, grad, out));
     let mut out = HostGrads {
         means: Vec::with_capacity(3 * n),
         scales: Vec::with_capacity(3 * n),

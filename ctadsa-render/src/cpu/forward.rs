@@ -4,6 +4,7 @@
 //! order kept, so the result does not depend on the thread count), then render the tiles in
 //! parallel, each Gaussian only over the exact per-row span of its footprint.
 
+use multiversion::multiversion;
 use rayon::prelude::*;
 
 use super::host::HostGaussians;
@@ -13,16 +14,23 @@ use crate::view_params::ViewParams;
 /// Tile edge in pixels.
 pub const TILE: i32 = 32;
 
+/// Gaussians per parallel work item.
+const CHUNK: usize = 2048;
+
+/// Projects Gaussians `first..first + out.len()` into `out`.
+#[multiversion(targets("x86_64+avx2+fma+sse4.1", "x86_64+sse4.1"))]
+fn project_chunk(g: &HostGaussians, first: usize, vp: &ViewParams, k_sigma: f32, out: &mut [Option<Projected>]) {
+    for (j, o) in out.iter_mut().enumerate() {
+        let (m, s, q, d) = g.get(first + j);
+        *o = project(m, s, q, d, vp, k_sigma).map(|(p, _)| p);
+    }
+}
+
 /// Projects all Gaussians into one view (`None` = culled).
 pub fn project_all(g: &HostGaussians, vp: &ViewParams, k_sigma: f32) -> Vec<Option<Projected>> {
-    (0..g.len())
-        .into_par_iter()
-        .with_min_len(1024)
-        .map(|i| {
-            let (m, s, q, d) = g.get(i);
-            project(m, s, q, d, vp, k_sigma).map(|(p, _)| p)
-        })
-        .collect()
+    let mut out = vec![None; g.len()];
+    out.par_chunks_mut(CHUNK).enumerate().for_each(|(c, chunk)| project_chunk(g, c * CHUNK, vp, k_sigma, chunk));
+    out
 }
 
 /// Gaussian indices per tile, in Gaussian order: `ids[offsets[t]..offsets[t + 1]]`.
@@ -68,23 +76,42 @@ pub fn bin_tiles(projected: &[Option<Projected>], vp: &ViewParams) -> TileBins {
     TileBins { tiles_x, tiles_y, offsets, ids }
 }
 
-/// Adds Gaussian `p` to pixels `[c0, c1]` of image row `row`, stored from `out[0]` (column `c0`).
+/// Pixels per inner-loop chunk (the lane arrays vectorise).
+const LANES: usize = 8;
+
+/// Adds Gaussian `p` to the pixels of columns `[c0, c1]` of image row `row` that see it,
+/// stored from `out[0]` (column `c0`). Works in whole chunks of [`LANES`] pixels: lanes past
+/// `c1` or outside the footprint add exactly 0, so `out` must extend `LANES − 1` values past
+/// `c1` (the tile buffer is padded).
 #[inline(always)]
 fn splat_row(p: &Projected, vp: &ViewParams, row: i32, c0: i32, c1: i32, out: &mut [f32]) {
     let re = p.row_eval(row, vp);
     let n = (c1 - c0 + 1) as usize;
-    for (j, o) in out[..n].iter_mut().enumerate() {
-        let dx = ((c0 + j as i32) as f32 - p.u0) * vp.inv_fx;
-        let alpha = re.a0 + dx * (re.a1 + dx * re.a2);
-        let quad = re.n0 + dx * (re.n1 + dx * re.n2);
-        let xn = p.x0 + dx;
-        let r2 = re.r0 + xn * xn;
-        let inv_a = 1.0 / alpha;
-        *o += p.amp * (r2 * inv_a).sqrt() * exp_neg(-0.5 * quad * inv_a);
+    // Lane arithmetic in f32 only (no integer overflow checks in the vector loop).
+    let lane_col: [f32; LANES] = std::array::from_fn(|l| l as f32);
+    let mut j = 0;
+    while j < n {
+        let chunk: &mut [f32; LANES] = (&mut out[j..j + LANES]).try_into().expect("padded buffer");
+        let first = (c0 as usize + j) as f32;
+        let last = c1 as f32;
+        for (l, o) in chunk.iter_mut().enumerate() {
+            let col = first + lane_col[l];
+            let dx = (col - p.u0) * vp.inv_fx;
+            let alpha = re.a0 + dx * (re.a1 + dx * re.a2);
+            let quad = re.n0 + dx * (re.n1 + dx * re.n2);
+            let xn = p.x0 + dx;
+            let r2 = re.r0 + xn * xn;
+            let inv_a = 1.0 / alpha;
+            let v = p.amp * (r2 * inv_a).sqrt() * exp_neg(-0.5 * quad * inv_a);
+            let keep = (col <= last) & p.sees(quad, alpha);
+            *o += if keep { v } else { 0.0 };
+        }
+        j += LANES;
     }
 }
 
-/// Renders one tile into `buf` (`TILE × TILE`, row-major).
+/// Renders one tile into `buf` (`TILE × TILE` row-major, plus [`LANES`] padding).
+#[multiversion(targets("x86_64+avx2+fma+sse4.1", "x86_64+sse4.1"))]
 fn render_tile(projected: &[Option<Projected>], ids: &[u32], vp: &ViewParams, tx: i32, ty: i32, buf: &mut [f32]) {
     let (x_lo, y_lo) = (tx * TILE, ty * TILE);
     let x_hi = (x_lo + TILE - 1).min(vp.width as i32 - 1);
@@ -95,11 +122,12 @@ fn render_tile(projected: &[Option<Projected>], ids: &[u32], vp: &ViewParams, tx
         let r1 = p.row_max.min(y_hi);
         let lo = p.col_min.max(x_lo);
         let hi = p.col_max.min(x_hi);
+        if lo > hi {
+            continue;
+        }
         for row in r0..=r1 {
-            if let Some((c0, c1)) = p.row_span(row, vp, lo, hi) {
-                let start = ((row - y_lo) * TILE + (c0 - x_lo)) as usize;
-                splat_row(p, vp, row, c0, c1, &mut buf[start..]);
-            }
+            let start = ((row - y_lo) * TILE + (lo - x_lo)) as usize;
+            splat_row(p, vp, row, lo, hi, &mut buf[start..]);
         }
     }
 }
@@ -125,7 +153,7 @@ pub fn render_view(g: &HostGaussians, vp: &ViewParams, k_sigma: f32, image: &mut
         .map(|&(tx, ty)| {
             let t = (ty * bins.tiles_x + tx) as usize;
             let ids = &bins.ids[bins.offsets[t] as usize..bins.offsets[t + 1] as usize];
-            let mut buf = vec![0.0f32; (TILE * TILE) as usize];
+            let mut buf = vec![0.0f32; (TILE * TILE) as usize + LANES];
             render_tile(&projected, ids, vp, tx, ty, &mut buf);
             buf
         })
@@ -145,8 +173,8 @@ pub fn render_view(g: &HostGaussians, vp: &ViewParams, k_sigma: f32, image: &mut
     }
 }
 
-/// Number of (pixel, Gaussian) pairs the forward pass evaluates (pixels inside the k-σ
-/// footprints), for throughput figures.
+/// Number of (pixel, Gaussian) pairs that contribute (pixels whose ray meets the k-σ
+/// ellipsoid), for throughput figures.
 pub fn count_pairs(g: &HostGaussians, views: &[ViewParams], k_sigma: f32) -> u64 {
     views
         .iter()
@@ -155,10 +183,17 @@ pub fn count_pairs(g: &HostGaussians, views: &[ViewParams], k_sigma: f32) -> u64
                 .par_iter()
                 .flatten()
                 .map(|p| {
-                    (p.row_min..=p.row_max)
-                        .filter_map(|row| p.row_span(row, vp, p.col_min, p.col_max))
-                        .map(|(c0, c1)| (c1 - c0 + 1) as u64)
-                        .sum::<u64>()
+                    let mut count = 0u64;
+                    for row in p.row_min..=p.row_max {
+                        let re = p.row_eval(row, vp);
+                        for col in p.col_min..=p.col_max {
+                            let dx = (col as f32 - p.u0) * vp.inv_fx;
+                            let alpha = re.a0 + dx * (re.a1 + dx * re.a2);
+                            let quad = re.n0 + dx * (re.n1 + dx * re.n2);
+                            count += p.sees(quad, alpha) as u64;
+                        }
+                    }
+                    count
                 })
                 .sum::<u64>()
         })

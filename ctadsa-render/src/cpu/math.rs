@@ -112,8 +112,11 @@ pub struct Projected {
     /// plane, every pixel is evaluated, no cut-off).
     pub k2: f32,
     pub bounded: bool,
-    /// Inclusive pixel bounding box of the footprint, clipped to the image; empty if
-    /// `col_min > col_max` or `row_min > row_max`.
+    /// `k²` for a bounded footprint, `+∞` otherwise (branch-free [`Projected::sees`]).
+    pub cut: f32,
+    /// Inclusive pixel bounding box of the footprint (the exact box of the k-σ ellipsoid's
+    /// image), clipped to the image; empty if `col_min > col_max` or `row_min > row_max`. The
+    /// pixels inside it that see the Gaussian are those where [`Projected::sees`] holds.
     pub col_min: i32,
     pub col_max: i32,
     pub row_min: i32,
@@ -127,26 +130,11 @@ impl Projected {
         self.col_min <= self.col_max && self.row_min <= self.row_max
     }
 
-    /// Inclusive column range of the footprint on image row `row`, clipped to `[lo, hi]`.
-    #[inline]
-    pub fn row_span(&self, row: i32, vp: &ViewParams, lo: i32, hi: i32) -> Option<(i32, i32)> {
-        if !self.bounded {
-            return Some((lo, hi));
-        }
-        let dy = (row as f32 - self.v0) * vp.inv_fy;
-        let k2 = self.k2;
-        let a = self.c_xx - k2 * self.q_xx;
-        let b = (self.c_xy - k2 * self.q_xy) * dy - k2 * self.g_x; // half of the linear coefficient
-        let c = (self.c_yy - k2 * self.q_yy) * dy * dy - 2.0 * k2 * self.g_y * dy - k2 * self.alpha_w;
-        let disc = b * b - a * c;
-        if !(disc >= 0.0) {
-            return None;
-        }
-        let centre = -b / a;
-        let half = disc.sqrt() / a;
-        let first = (self.u0 + (centre - half) * vp.fx).ceil().max(lo as f32) as i32;
-        let last = (self.u0 + (centre + half) * vp.fx).floor().min(hi as f32) as i32;
-        (first <= last).then_some((first, last))
+    /// Whether a pixel with `N = quad` and `α = alpha` sees the Gaussian: its ray passes within
+    /// `k` Mahalanobis units (`N/α ≤ k²`), or the footprint is unbounded.
+    #[inline(always)]
+    pub fn sees(&self, quad: f32, alpha: f32) -> bool {
+        quad <= self.cut * alpha
     }
 
     /// Per-row coefficients for evaluating pixels of row `row` (see [`RowEval`]).
@@ -197,7 +185,7 @@ pub struct Frame {
 /// Projects Gaussian `(mean, scale, quat, density)` (world mm) into view `vp` with a k-σ
 /// footprint. Returns `None` when the Gaussian is invalid (non-finite, zero quaternion),
 /// behind the source, or does not touch the image.
-#[inline]
+#[inline(always)]
 pub fn project(
     mean: [f32; 3],
     scale: [f32; 3],
@@ -229,7 +217,7 @@ pub fn project(
 
 /// The view-independent part of [`project`] once the camera-frame centre, precision and
 /// covariance are known.
-#[inline]
+#[inline(always)]
 fn setup(mu: [f32; 3], q: &Sym3, sig: &Sym3, density: f32, vp: &ViewParams, k_sigma: f32) -> Option<Projected> {
     let [qxx, qxy, qxz, qyy, qyz, qzz] = *q;
     let [sxx, sxy, sxz, syy, syz, szz] = *sig;
@@ -270,6 +258,7 @@ fn setup(mu: [f32; 3], q: &Sym3, sig: &Sym3, density: f32, vp: &ViewParams, k_si
         amp: density * SQRT_2PI,
         k2,
         bounded: true,
+        cut: k2,
         col_min: 0,
         col_max: vp.width as i32 - 1,
         row_min: 0,
@@ -281,6 +270,7 @@ fn setup(mu: [f32; 3], q: &Sym3, sig: &Sym3, density: f32, vp: &ViewParams, k_si
     if !(a_xx > 0.0 && det_a > 0.0) {
         // The k-σ ellipsoid reaches the source plane: unbounded footprint, every pixel.
         p.bounded = false;
+        p.cut = f32::INFINITY;
         return Some(p);
     }
     let (b_x, b_y) = (-k2 * g_x, -k2 * g_y);
@@ -325,7 +315,7 @@ pub fn exp_neg(x: f32) -> f32 {
     let p = p * r + 0.5;
     let p = p * r + 1.0;
     let p = p * r + 1.0;
-    let bits = ((n as i32 + 127) as u32) << 23;
+    let bits = ((n as i32).wrapping_add(127) as u32) << 23;
     let v = p * f32::from_bits(bits);
     if x <= -87.0 { 0.0 } else { v }
 }

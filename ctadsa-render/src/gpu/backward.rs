@@ -5,7 +5,7 @@
 use burn_cubecl::cubecl;
 use cubecl::prelude::*;
 
-use super::math::{Params, Sym3, load_params, load_view, project, quat_to_mat, row_eval, row_span, unit_value};
+use super::math::{Params, Sym3, load_params, load_view, project, quat_to_mat, row_eval, unit_value};
 
 /// `∂L/∂s` and `∂L/∂q` (unnormalised) from the world-frame `∂L/∂Q` (`cpu::backward::chain_precision`).
 #[derive(CubeType, Clone, Copy)]
@@ -123,37 +123,34 @@ pub fn render_backward_kernel(
                 let mut m_zz = 0.0f32;
                 let plane = (v as usize) * (vw.width as usize) * (vw.height as usize);
                 for row in pr.row_min..pr.row_max + 1 {
-                    let (c0, c1, ok) = row_span(&pr, &vw, row);
-                    if ok {
-                        let re = row_eval(&pr, &vw, row);
-                        let dy = re.dy;
-                        let yn = re.yn;
-                        let base = plane + (row as usize) * (vw.width as usize);
-                        for col in c0..c1 + 1 {
-                            let g = grad[base + col as usize];
-                            let dx = (f32::cast_from(col) - pr.u0) * vw.inv_fx;
-                            let (unit, inv_a) = unit_value(&pr, &re, dx);
-                            let gu = g * unit;
-                            let gi = gu * p.density;
-                            let xn = pr.x0 + dx;
-                            let qu_x = pr.g_x + pr.q.xx * dx + pr.q.xy * dy;
-                            let qu_y = pr.g_y + pr.q.xy * dx + pr.q.yy * dy;
-                            let beta = (qu_x * dx + qu_y * dy) * inv_a;
-                            let ex = pr.mu_z * (dx - beta * xn);
-                            let ey = pr.mu_z * (dy - beta * yn);
-                            let ez = pr.mu_z * beta * -1.0f32;
-                            let gia = gi * inv_a;
-                            s_unit += gu;
-                            e_x += gi * ex;
-                            e_y += gi * ey;
-                            e_z += gi * ez;
-                            m_xx += gia * xn * xn + gi * ex * ex;
-                            m_xy += gia * xn * yn + gi * ex * ey;
-                            m_xz += gia * xn + gi * ex * ez;
-                            m_yy += gia * yn * yn + gi * ey * ey;
-                            m_yz += gia * yn + gi * ey * ez;
-                            m_zz += gia + gi * ez * ez;
-                        }
+                    let re = row_eval(&pr, &vw, row);
+                    let dy = re.dy;
+                    let yn = re.yn;
+                    let base = plane + (row as usize) * (vw.width as usize);
+                    for col in pr.col_min..pr.col_max + 1 {
+                        let g = grad[base + col as usize];
+                        let dx = (f32::cast_from(col) - pr.u0) * vw.inv_fx;
+                        let (unit, inv_a) = unit_value(&pr, &re, dx);
+                        let gu = g * unit;
+                        let gi = gu * p.density;
+                        let xn = pr.x0 + dx;
+                        let qu_x = pr.g_x + pr.q.xx * dx + pr.q.xy * dy;
+                        let qu_y = pr.g_y + pr.q.xy * dx + pr.q.yy * dy;
+                        let beta = (qu_x * dx + qu_y * dy) * inv_a;
+                        let ex = pr.mu_z * (dx - beta * xn);
+                        let ey = pr.mu_z * (dy - beta * yn);
+                        let ez = pr.mu_z * beta * -1.0f32;
+                        let gia = gi * inv_a;
+                        s_unit += gu;
+                        e_x += gi * ex;
+                        e_y += gi * ey;
+                        e_z += gi * ez;
+                        m_xx += gia * xn * xn + gi * ex * ex;
+                        m_xy += gia * xn * yn + gi * ex * ey;
+                        m_xz += gia * xn + gi * ex * ez;
+                        m_yy += gia * yn * yn + gi * ey * ey;
+                        m_yz += gia * yn + gi * ey * ez;
+                        m_zz += gia + gi * ez * ez;
                     }
                 }
                 // ∂L/∂μ_c = Q E, to world with Rᵀ.

@@ -4,7 +4,7 @@
 use burn_cubecl::cubecl;
 use cubecl::prelude::*;
 
-use super::math::{atomic_add_f32, load_params, load_view, project, row_eval, row_span, unit_value};
+use super::math::{atomic_add_f32, load_params, load_view, project, row_eval, unit_value};
 
 #[cube(launch)]
 pub fn render_forward_kernel(
@@ -30,15 +30,12 @@ pub fn render_forward_kernel(
     if pr.valid == 1u32 {
         let plane = v * (vw.width as usize) * (vw.height as usize);
         for row in pr.row_min..pr.row_max + 1 {
-            let (c0, c1, ok) = row_span(&pr, &vw, row);
-            if ok {
-                let re = row_eval(&pr, &vw, row);
-                let base = plane + (row as usize) * (vw.width as usize);
-                for col in c0..c1 + 1 {
-                    let dx = (f32::cast_from(col) - pr.u0) * vw.inv_fx;
-                    let (unit, _inv_a) = unit_value(&pr, &re, dx);
-                    atomic_add_f32(&mut image[base + col as usize], unit * p.density);
-                }
+            let re = row_eval(&pr, &vw, row);
+            let base = plane + (row as usize) * (vw.width as usize);
+            for col in pr.col_min..pr.col_max + 1 {
+                let dx = (f32::cast_from(col) - pr.u0) * vw.inv_fx;
+                let (unit, _inv_a) = unit_value(&pr, &re, dx);
+                atomic_add_f32(&mut image[base + col as usize], unit * p.density);
             }
         }
     }

@@ -363,37 +363,6 @@ pub fn project(p: &Params, vw: &View, k_sigma: f32) -> Proj {
     }
 }
 
-/// Inclusive column span of the footprint on `row` within `[col_min, col_max]`:
-/// `(first, last, non_empty)` (`cpu::math::Projected::row_span`).
-#[cube]
-pub fn row_span(pr: &Proj, vw: &View, row: u32) -> (u32, u32, bool) {
-    let mut first = f32::cast_from(pr.col_min);
-    let mut last = f32::cast_from(pr.col_max);
-    let mut ok = true;
-    if pr.bounded == 1u32 {
-        let dy = (f32::cast_from(row) - pr.v0) * vw.inv_fy;
-        let k2 = pr.k2;
-        let a = pr.c_xx - k2 * pr.q.xx;
-        let b = (pr.c_xy - k2 * pr.q.xy) * dy - k2 * pr.g_x;
-        let c = (pr.c_yy - k2 * pr.q.yy) * dy * dy - 2.0 * k2 * pr.g_y * dy - k2 * pr.alpha_w;
-        let disc = b * b - a * c;
-        if disc >= 0.0 {
-            let centre = -b / a;
-            let half = f32::sqrt(disc) / a;
-            first = f32::max(f32::ceil(pr.u0 + (centre - half) * vw.fx), first);
-            last = f32::min(f32::floor(pr.u0 + (centre + half) * vw.fx), last);
-            ok = first <= last;
-        } else {
-            ok = false;
-        }
-    }
-    if !ok {
-        first = 0.0;
-        last = 0.0;
-    }
-    (u32::cast_from(first), u32::cast_from(last), ok)
-}
-
 /// Row coefficients `(dy, yn, a0, a1, n0, n1, r0)` (`cpu::math::Projected::row_eval`;
 /// `a2 = Q_xx`, `n2 = C_xx`).
 #[derive(CubeType, Clone, Copy)]
@@ -422,7 +391,9 @@ pub fn row_eval(pr: &Proj, vw: &View, row: u32) -> RowEval {
     }
 }
 
-/// `I/ρ` at normalised column offset `dx`: `√(2π) sqrt(|ũ|²/α) exp(−½ N/α)`, and `1/α`.
+/// `I/ρ` at normalised column offset `dx`: `√(2π) sqrt(|ũ|²/α) exp(−½ N/α)` — 0 when the
+/// pixel's ray misses the k-σ ellipsoid (`N > k²α`, bounded footprints; `cpu::math::Projected::sees`)
+/// — and `1/α`.
 #[cube]
 pub fn unit_value(pr: &Proj, re: &RowEval, dx: f32) -> (f32, f32) {
     let alpha = re.a0 + dx * (re.a1 + dx * pr.q.xx);
@@ -430,7 +401,9 @@ pub fn unit_value(pr: &Proj, re: &RowEval, dx: f32) -> (f32, f32) {
     let xn = pr.x0 + dx;
     let r2 = re.r0 + xn * xn;
     let inv_a = 1.0 / alpha;
-    (SQRT_2PI * f32::sqrt(r2 * inv_a) * f32::exp(quad * inv_a * -0.5f32), inv_a)
+    let value = SQRT_2PI * f32::sqrt(r2 * inv_a) * f32::exp(quad * inv_a * -0.5f32);
+    let sees = pr.bounded == 0u32 || quad <= pr.k2 * alpha;
+    (select(sees, value, 0.0f32), inv_a)
 }
 
 /// Adds `value` to `target[index]` with a compare-and-swap loop on the f32 bits (works on every
