@@ -2,6 +2,7 @@
 
 mod backend;
 mod bench;
+mod complete;
 mod progress;
 mod synth;
 
@@ -21,6 +22,11 @@ enum Command {
     /// Synthesise a case folder (views, prior, ground truth) from a vessel tree, a label volume,
     /// or the built-in procedural tree.
     Synth(synth::SynthArgs),
+    /// Complete the vessels of a case: optimise Gaussians against its DSA views, starting from
+    /// its prior; write the completed mesh, density volume, renders and metrics.
+    Complete(complete::CompleteArgs),
+    /// Synthesise the built-in phantom case and complete it with the quick CPU configuration.
+    Demo(complete::DemoArgs),
     /// Benchmarks (renderer, projector) with a table of timings and throughput.
     Bench(bench::BenchArgs),
 }
@@ -30,6 +36,8 @@ fn main() -> Result<()> {
     let cli = Cli::parse();
     match cli.command {
         Command::Synth(args) => synth::run(args),
+        Command::Complete(args) => complete::run(args),
+        Command::Demo(args) => complete::demo(args),
         Command::Bench(args) => bench::run(args),
     }
 }

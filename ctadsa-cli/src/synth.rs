@@ -44,6 +44,9 @@ pub struct SynthArgs {
     /// Detector binning factor.
     #[arg(long, default_value_t = 1)]
     binning: u32,
+    /// Detector size in pixels per side (before binning) instead of the preset's, same pitch.
+    #[arg(long)]
+    detector_px: Option<u32>,
     /// Voxel size (mm); default 256 voxels along the longest side of the tree's box.
     #[arg(long)]
     voxel_mm: Option<f64>,
@@ -100,6 +103,7 @@ pub fn config_from(args: &SynthArgs, anatomy: Anatomy, name: String) -> Result<S
         views: args.views.clone(),
         geometry: GeometryPreset::parse(&args.geometry)?,
         binning: args.binning,
+        detector_px: args.detector_px,
         contrast_per_mm: args.contrast,
         noise: NoiseModel {
             poisson_photons: args.noise_photons,

@@ -274,6 +274,12 @@ impl Config {
             }
             None => (String::new(), "<defaults>".into()),
         };
+        Self::from_toml_str(&text, &name, overrides)
+    }
+
+    /// Parses TOML text (`name` for messages) and applies `key=value` overrides.
+    pub fn from_toml_str(text: &str, name: &str, overrides: &[String]) -> Result<Self> {
+        let name = name.to_string();
         let mut table: toml::Table = text
             .parse()
             .map_err(|e| CoreError::Format { path: name.clone().into(), problem: format!("invalid TOML: {e}") })?;

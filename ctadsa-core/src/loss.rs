@@ -1,8 +1,6 @@
 //! Losses: `(1 − λ) L1 + λ (1 − SSIM)` on images normalised by the targets' maximum, the
 //! false-negative loss over vessel pixels, and the prior-anchoring term.
 
-use burn::tensor::module::conv2d;
-use burn::tensor::ops::ConvOptions;
 use burn::tensor::{Device, Int, Tensor, TensorData};
 use glam::DVec3;
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
@@ -10,28 +8,44 @@ use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use crate::case::images::Image;
 use crate::metrics::percentile;
 
-/// The 11 × 11 Gaussian window (σ = 1.5), normalised to sum 1, as a `[1, 1, 11, 11]` kernel.
-pub fn gaussian_window(device: &Device) -> Tensor<4> {
+/// The 1-D Gaussian taps (11, σ = 1.5), normalised to sum 1; the 2-D window is their outer
+/// product.
+pub fn gaussian_taps() -> [f32; 11] {
     let g: Vec<f64> = (0..11).map(|i| (-((i as f64 - 5.0).powi(2)) / (2.0 * 1.5 * 1.5)).exp()).collect();
     let s: f64 = g.iter().sum();
-    let w: Vec<f32> = (0..121).map(|k| (g[k / 11] * g[k % 11] / (s * s)) as f32).collect();
-    Tensor::from_data(TensorData::new(w, [1, 1, 11, 11]), device)
+    std::array::from_fn(|i| (g[i] / s) as f32)
+}
+
+/// Separable 11 × 11 Gaussian blur of `[V, H, W]` images with zero padding, as shifted slices
+/// (cheap forward and backward on every backend; burn-ndarray's conv2d backward is slow).
+pub fn gaussian_blur(x: Tensor<3>) -> Tensor<3> {
+    let taps = gaussian_taps();
+    let [v, h, w] = x.dims();
+    let device = x.device();
+    let zw = Tensor::<3>::zeros([v, h, 5], &device);
+    let xp = Tensor::cat(vec![zw.clone(), x, zw], 2);
+    let mut along_w = xp.clone().slice([0..v, 0..h, 0..w]).mul_scalar(taps[0]);
+    for (k, &t) in taps.iter().enumerate().skip(1) {
+        along_w = along_w + xp.clone().slice([0..v, 0..h, k..k + w]).mul_scalar(t);
+    }
+    let zh = Tensor::<3>::zeros([v, 5, w], &device);
+    let yp = Tensor::cat(vec![zh.clone(), along_w, zh], 1);
+    let mut out = yp.clone().slice([0..v, 0..h, 0..w]).mul_scalar(taps[0]);
+    for (k, &t) in taps.iter().enumerate().skip(1) {
+        out = out + yp.clone().slice([0..v, k..k + h, 0..w]).mul_scalar(t);
+    }
+    out
 }
 
 /// Mean SSIM of `[V, H, W]` images (Wang et al.; 11 × 11 Gaussian window σ 1.5, zero padding,
 /// C1 = 0.01², C2 = 0.03², i.e. images expected in [0, 1]), averaged over all pixels and views.
 pub fn ssim(pred: Tensor<3>, target: Tensor<3>) -> Tensor<1> {
-    let [v, h, w] = pred.dims();
-    let window = gaussian_window(&pred.device());
-    let opts = ConvOptions::new([1, 1], [5, 5], [1, 1], 1);
-    let blur = |x: Tensor<4>| conv2d(x, window.clone(), None, opts.clone());
-    let x = pred.reshape([v, 1, h, w]);
-    let y = target.reshape([v, 1, h, w]);
-    let mu_x = blur(x.clone());
-    let mu_y = blur(y.clone());
-    let sxx = blur(x.clone() * x.clone()) - mu_x.clone() * mu_x.clone();
-    let syy = blur(y.clone() * y.clone()) - mu_y.clone() * mu_y.clone();
-    let sxy = blur(x * y) - mu_x.clone() * mu_y.clone();
+    let (x, y) = (pred, target);
+    let mu_x = gaussian_blur(x.clone());
+    let mu_y = gaussian_blur(y.clone());
+    let sxx = gaussian_blur(x.clone() * x.clone()) - mu_x.clone() * mu_x.clone();
+    let syy = gaussian_blur(y.clone() * y.clone()) - mu_y.clone() * mu_y.clone();
+    let sxy = gaussian_blur(x * y) - mu_x.clone() * mu_y.clone();
     let (c1, c2) = (0.01f32 * 0.01, 0.03f32 * 0.03);
     let num = (mu_x.clone() * mu_y.clone()).mul_scalar(2.0).add_scalar(c1) * sxy.mul_scalar(2.0).add_scalar(c2);
     let den = (mu_x.clone() * mu_x + mu_y.clone() * mu_y).add_scalar(c1) * (sxx + syy).add_scalar(c2);

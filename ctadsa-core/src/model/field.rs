@@ -81,7 +81,7 @@ impl OpacityField {
                 (d.exp_m1().max(1e-30)).ln() as f32
             }
         };
-        output.weight = output.weight.map(|w| w.mul_scalar(0.1));
+        output.weight = output.weight.map(|w| w.mul_scalar(0.1).detach().require_grad());
         output.bias =
             Some(burn::module::Param::from_tensor(Tensor::from_data(TensorData::new(vec![bias], [1]), device)));
         Self { grid, hidden, output, frame: FieldFrame { min_mm, size_mm, output: config.output } }

@@ -4,8 +4,9 @@
 //! falls in cell `⌊u r_l⌋` and reads the `features`-vectors stored at the cell's 8 corners,
 //! trilinearly weighted. Corner `c` is stored at `c_x + c_y (r+1) + c_z (r+1)²` when the level's
 //! grid fits in the table (dense), else at `(c_x ⊕ c_y·P₁ ⊕ c_z·P₂) mod T` (hashed). All levels'
-//! tables are one `[levels·T, features]` parameter, gathered with one `select`; gradients reach
-//! the table (scatter-add) and the positions (through the trilinear weights).
+//! tables are one `[features, levels·T]` parameter (feature-major), read with one `gather` along
+//! its last axis; gradients reach the table (scatter-add) and the positions (through the
+//! trilinear weights).
 
 use burn::module::{Module, Param};
 use burn::tensor::{Device, Distribution, Int, Tensor, TensorData};
@@ -79,7 +80,7 @@ impl HashGridConfig {
 /// The encoding's parameter (all level tables) and settings.
 #[derive(Module, Debug)]
 pub struct HashGrid {
-    /// `[levels · T, features]`.
+    /// `[features, levels · T]`.
     pub tables: Param<Tensor<2>>,
     #[module(skip)]
     pub config: HashGridConfig,
@@ -89,12 +90,19 @@ impl HashGrid {
     /// Tables initialised uniformly in ±1e-4 (as instant-NGP).
     pub fn new(config: HashGridConfig, device: &Device) -> Self {
         let rows = config.levels * config.table_size() as usize;
-        let tables = Tensor::random([rows, config.features], Distribution::Uniform(-1e-4, 1e-4), device);
+        let tables = Tensor::random([config.features, rows], Distribution::Uniform(-1e-4, 1e-4), device);
         Self { tables: Param::from_tensor(tables), config }
     }
 
-    /// Encodes points `u` `[N, 3]` in `[0, 1]³` (clamped) into `[N, levels · features]`.
+    /// Encodes points `u` `[N, 3]` in `[0, 1]³` (clamped) into `[N, levels · features]`
+    /// with the backend op (CPU or GPU kernels, hand-written backward).
     pub fn forward(&self, u: Tensor<2>) -> Tensor<2> {
+        super::hash_op::hash_encode(u, self.tables.val(), self.config)
+    }
+
+    /// The same encoding composed of plain burn tensor operations (autodiff through them);
+    /// slower, kept as a second implementation for tests.
+    pub fn forward_tensor_ops(&self, u: Tensor<2>) -> Tensor<2> {
         let c = self.config;
         let device = u.device();
         let n = u.dims()[0];
@@ -141,8 +149,10 @@ impl HashGrid {
         let hash_idx =
             (cx.bitwise_xor(cy.mul_scalar(HASH_P1)).bitwise_xor(cz.mul_scalar(HASH_P2))).bitwise_and_scalar(t - 1);
         let idx = dense_idx * dense.clone() + hash_idx * (dense.neg().add_scalar(1)) + base; // [N, L, 8]
-        let rows = self.tables.val().select(0, idx.reshape([n * levels * 8])); // [N·L·8, F]
-        let rows = rows.reshape([n, levels, 8, feats]);
+        let m = n * levels * 8;
+        let idx = idx.reshape([1, m]).repeat_dim(0, feats); // [F, M]
+        let rows = self.tables.val().gather(1, idx); // [F, M]
+        let rows = rows.swap_dims(0, 1).reshape([n, levels, 8, feats]);
         // Trilinear weights Π_d (o_d f_d + (1 − o_d)(1 − f_d)).
         let f = frac.reshape([n, levels, 1, 3]);
         let w = f.clone() * off_f.clone() + (f.neg().add_scalar(1.0)) * (off_f.neg().add_scalar(1.0)); // [N,L,8,3]
@@ -154,7 +164,7 @@ impl HashGrid {
 }
 
 /// A direct per-point evaluation of the same encoding from the table values (host, f64), for
-/// tests: `tables` is `[levels·T, features]` row-major, `u` one point.
+/// tests: `tables` is `[features, levels·T]` row-major, `u` one point.
 pub fn encode_reference(config: &HashGridConfig, tables: &[f32], u: [f64; 3]) -> Vec<f64> {
     let t = config.table_size();
     let mut out = Vec::with_capacity(config.output_dim());
@@ -174,8 +184,9 @@ pub fn encode_reference(config: &HashGridConfig, tables: &[f32], u: [f64; 3]) ->
             };
             let w: f64 = (0..3).map(|d| if o[d] == 1 { frac[d] } else { 1.0 - frac[d] }).product();
             let row = (l as i64 * t + idx) as usize;
+            let stride = config.levels * t as usize;
             for (f, a) in acc.iter_mut().enumerate() {
-                *a += w * tables[row * config.features + f] as f64;
+                *a += w * tables[f * stride + row] as f64;
             }
         }
         out.extend(acc);

@@ -3,6 +3,7 @@
 
 pub mod field;
 pub mod hash_grid;
+pub mod hash_op;
 
 use burn::module::{Module, Param};
 use burn::tensor::activation::sigmoid;

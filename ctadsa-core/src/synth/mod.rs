@@ -70,6 +70,10 @@ pub struct SynthConfig {
     pub geometry: GeometryPreset,
     /// Detector binning (1 = native pixels).
     pub binning: u32,
+    /// Detector size (pixels per side, before binning) instead of the preset's; the pixel
+    /// pitch stays the preset's, so a smaller detector is a centred crop.
+    #[serde(default)]
+    pub detector_px: Option<u32>,
     /// DSA value per mm of vessel path.
     pub contrast_per_mm: f64,
     pub noise: NoiseModel,
@@ -91,6 +95,7 @@ impl Default for SynthConfig {
             views: "ap-lat-oblique".into(),
             geometry: GeometryPreset::Reference,
             binning: 1,
+            detector_px: None,
             contrast_per_mm: 1.0,
             noise: NoiseModel::default(),
             normalise: false,
@@ -262,7 +267,19 @@ pub fn synthesize(cfg: &SynthConfig, out: &Path, progress: &mut dyn FnMut(&str))
 
     progress("projections");
     let angles = view_preset(&cfg.views)?;
-    let geoms: Vec<_> = angles.iter().map(|(_, p, s)| cfg.geometry.geometry(*p, *s, cfg.binning)).collect();
+    let geoms: Vec<_> = angles
+        .iter()
+        .map(|(_, p, s)| {
+            let mut g = cfg.geometry.geometry(*p, *s, 1);
+            if let Some(n) = cfg.detector_px {
+                g.detector_px = [n, n];
+            }
+            let b = cfg.binning.max(1);
+            g.detector_px = g.detector_px.map(|d| (d / b).max(1));
+            g.pixel_mm = g.pixel_mm.map(|p| p * b as f64);
+            g
+        })
+        .collect();
     let views: Vec<ConeBeamView> = geoms.iter().map(ConeBeamView::from_tigre).collect::<std::result::Result<_, _>>()?;
     let contrast = r.complete.map(|v| v * cfg.contrast_per_mm as f32);
     let mut images = project_volume(&contrast, &views);

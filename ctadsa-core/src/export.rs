@@ -1,0 +1,197 @@
+//! Everything a completion run writes: density volume (NIfTI), completed mesh, Gaussians (PLY),
+//! renders beside targets with their difference (PNG), loss curve (PNG + CSV), the config used,
+//! and metrics (JSON) when the case has ground truth.
+
+use std::path::Path;
+
+use burn::module::Module;
+use glam::DVec3;
+use serde::Serialize;
+
+use crate::case::Case;
+use crate::case::images::write_rgb_or_grey;
+use crate::error::{Result, write_file};
+use crate::mesh::TriMesh;
+use crate::mesh::io::{read_mesh, write_mesh, write_point_ply};
+use crate::mesh::marching::extract_isosurface;
+use crate::mesh::render_png::{Coloured, standard_views, write_mesh_png};
+use crate::mesh::sample::sample_surface;
+use crate::metrics::{RegionScores, percentile, region_scores};
+use crate::model::host_vec;
+use crate::plot::{PALETTE, Series, line_plot};
+use crate::train::Trainer;
+use crate::volume::nifti_io::write_nifti;
+use crate::volume::{Grid, Volume};
+
+/// Numbers of a finished run.
+#[derive(Debug, Clone, Serialize)]
+pub struct RunSummary {
+    pub iterations: usize,
+    pub gaussians: usize,
+    pub n1: usize,
+    pub n2: usize,
+    /// Iso-level of the extracted surface (density units) and the triangle count.
+    pub mc_level: f64,
+    pub mesh_triangles: usize,
+    pub final_loss: f64,
+    pub metrics: Option<RegionScores>,
+    /// The same metrics for the prior alone (what the run started from), for comparison.
+    pub prior_metrics: Option<RegionScores>,
+}
+
+/// The density field on a grid over the working box.
+pub fn density_volume(trainer: &Trainer) -> Result<Volume<f32>> {
+    let voxel = if trainer.cfg.output.voxel_mm > 0.0 { trainer.cfg.output.voxel_mm } else { trainer.voxel_mm };
+    let grid = Grid::covering(&trainer.working_box, voxel)?;
+    let m = trainer.model().valid();
+    let vol = ctadsa_render::voxelize(&m.gaussians(), &grid.to_render_grid()?, &trainer.settings)?;
+    Ok(Volume { grid, index_to_world: grid.index_to_world(), data: host_vec(vol) })
+}
+
+/// The iso-level: relative to the 99.9th percentile of the positive densities, or absolute.
+pub fn mc_level(volume: &Volume<f32>, level: f64, relative: bool) -> f64 {
+    if !relative {
+        return level;
+    }
+    let pos: Vec<f64> = volume.data.iter().filter(|&&v| v > 0.0).map(|&v| v as f64).collect();
+    level * if pos.is_empty() { 1.0 } else { percentile(&pos, 99.9) }
+}
+
+/// `[target | render | |difference|]` of every view, one PNG per view.
+fn write_renders(dir: &Path, case: &Case, trainer: &Trainer, renders: &[Vec<f32>]) -> Result<()> {
+    let names: Vec<String> = if trainer.cfg.run.views.is_empty() {
+        case.file.views.iter().map(|v| v.name.clone()).collect()
+    } else {
+        trainer.cfg.run.views.iter().map(|&i| case.file.views[i].name.clone()).collect()
+    };
+    for ((name, target), render) in names.iter().zip(&trainer.images).zip(renders) {
+        let (w, h) = (target.width as usize, target.height as usize);
+        let max = target.max().max(render.iter().copied().fold(0.0, f32::max)).max(1e-12);
+        let mut rgb = vec![255u8; 3 * w * 3 * h];
+        let stride = 3 * w;
+        for r in 0..h {
+            for c in 0..w {
+                let t = target.data[r * w + c] / max;
+                let p = render[r * w + c] / max;
+                let d = p - t;
+                let grey = |v: f32| (255.0 * (1.0 - v.clamp(0.0, 1.0))).round() as u8;
+                let px = |k: usize, col: [u8; 3], rgb: &mut Vec<u8>| {
+                    let i = 3 * (r * stride + k * w + c);
+                    rgb[i..i + 3].copy_from_slice(&col);
+                };
+                px(0, [grey(t); 3], &mut rgb);
+                px(1, [grey(p); 3], &mut rgb);
+                // Difference: red where the render is too bright, blue where too dark.
+                let m = (255.0 * (1.0 - (d.abs() * 2.0).clamp(0.0, 1.0))).round() as u8;
+                px(2, if d > 0.0 { [255, m, m] } else { [m, m, 255] }, &mut rgb);
+            }
+        }
+        write_rgb_or_grey(&dir.join(format!("renders/{name}.png")), (3 * w) as u32, h as u32, rgb, 3)?;
+    }
+    Ok(())
+}
+
+/// Surface samples of a mesh for metrics.
+fn samples(mesh: &TriMesh, n: usize) -> Vec<DVec3> {
+    sample_surface(mesh, n, 1234)
+}
+
+/// Scores of `pred` against the case's ground truth, if it has one.
+pub fn case_metrics(case: &Case, pred: &TriMesh, n: usize) -> Result<Option<RegionScores>> {
+    let Some(gt) = &case.file.ground_truth else { return Ok(None) };
+    let complete = read_mesh(&case.path(&gt.complete_mesh))?;
+    let split = match (&gt.missing_mesh, &case.file.prior) {
+        (Some(missing), Some(prior)) => {
+            let m = read_mesh(&case.path(missing))?;
+            let p = read_mesh(&case.path(&prior.mesh))?;
+            Some((samples(&p, n), samples(&m, n)))
+        }
+        _ => None,
+    };
+    let pred_pts = samples(pred, n);
+    let gt_pts = samples(&complete, n);
+    Ok(Some(region_scores(&pred_pts, &gt_pts, split.as_ref().map(|(p, m)| (p.as_slice(), m.as_slice())))))
+}
+
+/// Writes the outputs of a run into `dir`.
+pub fn write_outputs(dir: &Path, case: &Case, trainer: &Trainer) -> Result<RunSummary> {
+    let cfg = &trainer.cfg;
+    write_file(&dir.join("config.toml"), cfg.to_toml().as_bytes())?;
+    // Gaussians.
+    let (means, scales, rotations, densities) = trainer.host_gaussians();
+    let rows: Vec<Vec<f32>> = (0..densities.len())
+        .map(|i| {
+            let mut r = means[3 * i..3 * i + 3].to_vec();
+            r.extend_from_slice(&scales[3 * i..3 * i + 3]);
+            r.extend_from_slice(&rotations[4 * i..4 * i + 4]);
+            r.push(densities[i]);
+            r
+        })
+        .collect();
+    write_point_ply(
+        &dir.join("gaussians.ply"),
+        &["x", "y", "z", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3", "density"],
+        &rows,
+        "ctadsa Gaussians: centres and scales in mm, quaternion w x y z, density per mm",
+    )?;
+    // Volume and mesh.
+    let volume = density_volume(trainer)?;
+    write_nifti(&dir.join("density.nii.gz"), &volume, "ctadsa density (per mm)")?;
+    let level = mc_level(&volume, cfg.output.mc_level, cfg.output.mc_relative);
+    let mesh = extract_isosurface(&volume, level as f32);
+    write_mesh(&dir.join(format!("mesh.{}", cfg.output.mesh_format)), &mesh)?;
+    // Renders.
+    let renders = trainer.render_all()?;
+    write_renders(dir, case, trainer, &renders)?;
+    // Loss curve.
+    let h = &trainer.history;
+    let mut csv = String::from("iteration,loss,l1,ssim,fn_loss,pa_loss,gaussians\n");
+    for s in h {
+        csv.push_str(&format!(
+            "{},{},{},{},{},{},{}\n",
+            s.iteration, s.loss, s.l1, s.ssim, s.fn_loss, s.pa_loss, s.gaussians
+        ));
+    }
+    write_file(&dir.join("loss.csv"), csv.as_bytes())?;
+    let pick = |f: fn(&crate::train::StepLog) -> f64| h.iter().map(|s| (s.iteration as f64, f(s))).collect::<Vec<_>>();
+    line_plot(
+        &dir.join("loss.png"),
+        "TRAINING LOSS",
+        "ITERATION",
+        "LOSS (LOG)",
+        &[
+            Series { name: "TOTAL".into(), points: pick(|s| s.loss), rgb: PALETTE[5] },
+            Series { name: "L1".into(), points: pick(|s| s.l1), rgb: PALETTE[0] },
+            Series { name: "1-SSIM".into(), points: pick(|s| 1.0 - s.ssim), rgb: PALETTE[1] },
+            Series { name: "FN".into(), points: pick(|s| s.fn_loss), rgb: PALETTE[2] },
+        ],
+        true,
+    )?;
+    // Pictures of the mesh: prior in red, the rest of the completed mesh in blue.
+    let prior = case.prior_mesh()?;
+    let mut parts = vec![Coloured { mesh: &mesh, rgb: [60, 120, 220] }];
+    if let Some(p) = &prior {
+        parts.push(Coloured { mesh: p, rgb: [210, 60, 50] });
+    }
+    write_mesh_png(&dir.join("mesh.png"), &parts, &standard_views(360))?;
+    // Metrics.
+    let n = cfg.output.metric_samples;
+    let metrics = case_metrics(case, &mesh, n)?;
+    let prior_metrics = match &prior {
+        Some(p) => case_metrics(case, p, n)?,
+        None => None,
+    };
+    let summary = RunSummary {
+        iterations: trainer.iteration,
+        gaussians: densities.len(),
+        n1: trainer.n1,
+        n2: trainer.n2,
+        mc_level: level,
+        mesh_triangles: mesh.faces.len(),
+        final_loss: h.last().map_or(f64::NAN, |s| s.loss),
+        metrics,
+        prior_metrics,
+    };
+    write_file(&dir.join("summary.json"), serde_json::to_string_pretty(&summary).unwrap_or_default().as_bytes())?;
+    Ok(summary)
+}
