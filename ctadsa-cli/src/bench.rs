@@ -46,6 +46,25 @@ enum BenchWhat {
         #[arg(long, value_enum)]
         backend: Option<BackendKind>,
     },
+    /// Time per optimisation step by stage (field, render, losses, backward, optimiser, densify)
+    /// on a case, with the peak memory.
+    Train {
+        /// Case folder (default: the demo case, synthesised into a temporary folder).
+        #[arg(long)]
+        case: Option<std::path::PathBuf>,
+        /// Configuration (default: the built-in quick config).
+        #[arg(long)]
+        config: Option<std::path::PathBuf>,
+        /// Override a config value (repeatable), e.g. init.n1=30000.
+        #[arg(long = "set")]
+        overrides: Vec<String>,
+        /// Timed steps (after 2 warm-up steps); the mean per stage is reported.
+        #[arg(long, default_value_t = 20)]
+        steps: usize,
+        /// Backend.
+        #[arg(long, value_enum, default_value = "ndarray")]
+        backend: BackendKind,
+    },
     /// Our voxel projector against plastimatch's DRR on the same vessel volume.
     Projector {
         /// Voxels along each side of the cubic volume.
@@ -156,6 +175,94 @@ fn bench_render(gaussians: usize, size: u32, repeats: usize, backend: Option<Bac
             pairs as f64 / t_op / 1e6
         );
     }
+    if let Some(m) = peak_rss_mib() {
+        println!("\npeak resident memory: {m:.0} MiB");
+    }
+    Ok(())
+}
+
+fn bench_train(
+    case: Option<std::path::PathBuf>,
+    config: Option<std::path::PathBuf>,
+    overrides: &[String],
+    steps: usize,
+    backend: BackendKind,
+) -> Result<()> {
+    use ctadsa_core::case::Case;
+    use ctadsa_core::config::Config;
+    use ctadsa_core::train::Trainer;
+    let case_dir = match case {
+        Some(d) => d,
+        None => {
+            let d = std::env::temp_dir().join(format!("ctadsa-bench-case-{}", std::process::id()));
+            eprintln!("synthesising the demo case into {}", d.display());
+            ctadsa_core::synth::synthesize(&crate::complete::demo_case_config(), &d, &mut |_| {})?;
+            d
+        }
+    };
+    let case = Case::load(&case_dir)?;
+    let cfg = match &config {
+        Some(p) => Config::load(Some(p), overrides)?,
+        None => Config::from_toml_str(crate::complete::QUICK_TOML, "configs/quick.toml", overrides)?,
+    };
+    let device = backend.device()?.autodiff();
+    let t0 = Instant::now();
+    let mut trainer = Trainer::new(&case, cfg.clone(), device)?;
+    let t_init = t0.elapsed().as_secs_f64();
+    for _ in 0..2 {
+        trainer.step()?;
+    }
+    let mut sum = ctadsa_core::train::StageTimes::default();
+    let start = Instant::now();
+    for _ in 0..steps.max(1) {
+        let t = trainer.step()?.times;
+        sum.field += t.field;
+        sum.render += t.render;
+        sum.losses += t.losses;
+        sum.backward += t.backward;
+        sum.optimizer += t.optimizer;
+    }
+    let per_step = start.elapsed().as_secs_f64() / steps.max(1) as f64;
+    let t_dens = Instant::now();
+    let plan = trainer.densify()?;
+    let t_dens = t_dens.elapsed().as_secs_f64();
+    let n = steps.max(1) as f64;
+    let (w, h) = trainer.views.image_size();
+    println!(
+        "case {} ({} views of {w} × {h} px), config {}, {} Gaussians, hash table 2^{} × {} levels, {backend:?}, {} threads",
+        case.file.name,
+        trainer.views.len(),
+        config.as_ref().map_or("quick (built in)".to_string(), |p| p.display().to_string()),
+        trainer.model().len(),
+        cfg.field.encoding.log2_table,
+        cfg.field.encoding.levels,
+        rayon::current_num_threads()
+    );
+    println!(
+        "views rendered per step: {}",
+        if cfg.run.views_per_step == 0 { trainer.views.len() } else { cfg.run.views_per_step.min(trainer.views.len()) }
+    );
+    println!();
+    println!("| stage | ms per step |");
+    println!("|---|---:|");
+    for (name, v) in [
+        ("field (hash grid + MLP)", sum.field),
+        ("render (forward)", sum.render),
+        ("losses (L1, SSIM, FN, PA)", sum.losses),
+        ("backward (all)", sum.backward),
+        ("optimiser (Adam)", sum.optimizer),
+    ] {
+        println!("| {name} | {:.1} |", v / n * 1e3);
+    }
+    println!("| **total per step** | **{:.1}** |", per_step * 1e3);
+    println!(
+        "| densify (one call: {} cloned, {} split, {} pruned) | {:.1} |",
+        plan.cloned,
+        plan.split,
+        plan.pruned,
+        t_dens * 1e3
+    );
+    println!("| initialisation (once) | {:.0} |", t_init * 1e3);
     if let Some(m) = peak_rss_mib() {
         println!("\npeak resident memory: {m:.0} MiB");
     }
@@ -306,5 +413,8 @@ pub fn run(args: BenchArgs) -> Result<()> {
     match args.what {
         BenchWhat::Render { gaussians, size, repeats, backend } => bench_render(gaussians, size, repeats, backend),
         BenchWhat::Projector { voxels, size } => bench_projector(voxels, size),
+        BenchWhat::Train { case, config, overrides, steps, backend } => {
+            bench_train(case, config, &overrides, steps, backend)
+        }
     }
 }

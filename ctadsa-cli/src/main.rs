@@ -3,6 +3,8 @@
 mod backend;
 mod bench;
 mod complete;
+mod eval;
+mod experiment;
 mod progress;
 mod synth;
 
@@ -27,6 +29,11 @@ enum Command {
     Complete(complete::CompleteArgs),
     /// Synthesise the built-in phantom case and complete it with the quick CPU configuration.
     Demo(complete::DemoArgs),
+    /// Chamfer and Hausdorff distances (mm) of a predicted surface to a ground truth, overall and
+    /// in the missing-vessel region (ROI) and the prior region.
+    Eval(eval::EvalArgs),
+    /// Run a matrix of cases × views × prior thresholds × methods (resumable) and tabulate it.
+    Experiment(experiment::ExperimentArgs),
     /// Benchmarks (renderer, projector) with a table of timings and throughput.
     Bench(bench::BenchArgs),
 }
@@ -38,6 +45,8 @@ fn main() -> Result<()> {
         Command::Synth(args) => synth::run(args),
         Command::Complete(args) => complete::run(args),
         Command::Demo(args) => complete::demo(args),
+        Command::Eval(args) => eval::run(args),
+        Command::Experiment(args) => experiment::run(args),
         Command::Bench(args) => bench::run(args),
     }
 }

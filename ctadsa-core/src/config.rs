@@ -264,25 +264,62 @@ fn parse_value(text: &str) -> toml::Value {
     }
 }
 
-impl Config {
-    /// Reads a TOML file and applies `key=value` overrides.
-    pub fn load(path: Option<&Path>, overrides: &[String]) -> Result<Self> {
-        let (text, name) = match path {
-            Some(p) => {
-                let bytes = read_file(p)?;
-                (String::from_utf8(bytes).map_err(|_| CoreError::format(p, "not UTF-8 text"))?, p.display().to_string())
+/// Lays `over` onto `base`: tables merge key by key, everything else replaces.
+fn merge(base: &mut toml::Table, over: toml::Table) {
+    for (k, v) in over {
+        match (base.get_mut(&k), v) {
+            (Some(toml::Value::Table(b)), toml::Value::Table(o)) => merge(b, o),
+            (_, v) => {
+                base.insert(k, v);
             }
-            None => (String::new(), "<defaults>".into()),
-        };
-        Self::from_toml_str(&text, &name, overrides)
+        }
+    }
+}
+
+/// Reads a TOML file, following `base = "..."` (relative to the file, at most 8 deep).
+fn load_table(path: &Path, depth: usize) -> Result<toml::Table> {
+    if depth > 8 {
+        return Err(CoreError::format(path, "`base` chain deeper than 8 (a cycle?)"));
+    }
+    let bytes = read_file(path)?;
+    let text = String::from_utf8(bytes).map_err(|_| CoreError::format(path, "not UTF-8 text"))?;
+    let mut table: toml::Table = text.parse().map_err(|e| CoreError::format(path, format!("invalid TOML: {e}")))?;
+    match table.remove("base") {
+        None => Ok(table),
+        Some(toml::Value::String(b)) => {
+            let base_path = path.parent().unwrap_or(Path::new(".")).join(b);
+            let mut base = load_table(&base_path, depth + 1)?;
+            merge(&mut base, table);
+            Ok(base)
+        }
+        Some(_) => Err(CoreError::format(path, "`base` must be a string (a path relative to this file)")),
+    }
+}
+
+impl Config {
+    /// Reads a TOML file and applies `key=value` overrides. A file may start from another one
+    /// with a top-level `base = "other.toml"` (relative to the file; chains allowed): its keys
+    /// are laid over the base's, section by section.
+    pub fn load(path: Option<&Path>, overrides: &[String]) -> Result<Self> {
+        match path {
+            Some(p) => {
+                let table = load_table(p, 0)?;
+                Self::from_table(table, &p.display().to_string(), overrides)
+            }
+            None => Self::from_toml_str("", "<defaults>", overrides),
+        }
     }
 
-    /// Parses TOML text (`name` for messages) and applies `key=value` overrides.
+    /// Parses TOML text (`name` for messages) and applies `key=value` overrides (`base` is not
+    /// followed: there is no file to resolve it against).
     pub fn from_toml_str(text: &str, name: &str, overrides: &[String]) -> Result<Self> {
+        let table: toml::Table =
+            text.parse().map_err(|e| CoreError::Format { path: name.into(), problem: format!("invalid TOML: {e}") })?;
+        Self::from_table(table, name, overrides)
+    }
+
+    fn from_table(mut table: toml::Table, name: &str, overrides: &[String]) -> Result<Self> {
         let name = name.to_string();
-        let mut table: toml::Table = text
-            .parse()
-            .map_err(|e| CoreError::Format { path: name.clone().into(), problem: format!("invalid TOML: {e}") })?;
         for o in overrides {
             let (key, value) = o
                 .split_once('=')
@@ -373,5 +410,21 @@ mod tests {
         let text = ok.to_toml();
         let back: Config = toml::from_str(&text).unwrap();
         assert_eq!(back, ok);
+    }
+
+    #[test]
+    fn a_config_can_start_from_a_base_file() {
+        let dir = std::env::temp_dir().join(format!("ctadsa-cfg-{}", std::process::id()));
+        std::fs::create_dir_all(dir.join("sub")).unwrap();
+        std::fs::write(dir.join("base.toml"), "[run]\niterations = 77\nseed = 3\n[loss]\nfn_weight = 0.5\n").unwrap();
+        std::fs::write(dir.join("sub/child.toml"), "base = \"../base.toml\"\n[run]\nseed = 9\n").unwrap();
+        let c = Config::load(Some(&dir.join("sub/child.toml")), &["loss.pa_k=3".into()]).unwrap();
+        assert_eq!((c.run.iterations, c.run.seed, c.loss.fn_weight, c.loss.pa_k), (77, 9, 0.5, 3));
+        std::fs::write(dir.join("loop.toml"), "base = \"loop.toml\"\n").unwrap();
+        let err = Config::load(Some(&dir.join("loop.toml")), &[]).unwrap_err().to_string();
+        assert!(err.contains("loop.toml") && err.contains("base"), "{err}");
+        std::fs::write(dir.join("typo.toml"), "base = \"base.toml\"\n[run]\niteratons = 5\n").unwrap();
+        let err = Config::load(Some(&dir.join("typo.toml")), &[]).unwrap_err().to_string();
+        assert!(err.contains("iteratons"), "{err}");
     }
 }

@@ -228,3 +228,105 @@ pub fn apply(
     };
     Ok((model, optim))
 }
+
+#[cfg(test)]
+mod tests {
+    #![allow(deprecated)] // burn-ndarray is the CPU backend the tests use.
+    use super::*;
+    use crate::model::field::FieldConfig;
+    use crate::model::hash_grid::HashGridConfig;
+    use crate::model::host_vec;
+    use burn::lr_scheduler::constant::ConstantLr;
+    use burn::lr_scheduler::module_lr_scheduler::ModuleLrScheduler;
+    use burn::optim::{AdamConfig, GradientsParams};
+    use burn::tensor::{Tensor, TensorData};
+
+    /// Adam moments of the parameter `id` as `(rows, moment 1, moment 2)` (host copies).
+    fn moments(optim: ModuleOptimizer, id: burn::module::ParamId) -> (ModuleOptimizer, Vec<Vec<f32>>) {
+        let bytes = optim.into_bytes().unwrap();
+        let reader = burn_pack::Reader::from_bytes(bytes.clone()).unwrap();
+        let mut found = Vec::new();
+        for t in reader.into_tensors().unwrap() {
+            let (_, _, _, pid, b) = t.into_parts().unwrap();
+            if pid == Some(id.val()) {
+                found.push(b.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect());
+            }
+        }
+        let optim = AdamConfig::new().init().from_bytes(bytes).unwrap();
+        (optim, found)
+    }
+
+    #[test]
+    fn apply_keeps_values_and_moments_of_kept_gaussians_and_zeroes_new_moments() {
+        let device = Device::ndarray().autodiff();
+        let n = 5;
+        let init = GaussianInit {
+            means: (0..3 * n).map(|i| i as f32 * 0.5).collect(),
+            raw_scales: (0..3 * n).map(|i| (i as f32 * 0.1).sin()).collect(),
+            rotations: (0..n).flat_map(|i| [1.0, 0.1 * i as f32, 0.0, 0.0]).collect(),
+        };
+        let small = FieldConfig {
+            encoding: HashGridConfig { levels: 2, features: 2, log2_table: 8, base_resolution: 4.0, growth: 1.5 },
+            hidden: 8,
+            hidden_layers: 1,
+            ..FieldConfig::default()
+        };
+        let field = GaussianModel::new_field(&small, [0.0; 3], [10.0; 3], 1.0, &device);
+        let model = GaussianModel::new(&init, field, ScaleBounds::from_voxel(0.5, 0.1, 10.0), &device);
+        let mut optim = AdamConfig::new().init();
+        // Two steps with a loss that gives every row a different gradient.
+        let mut model = model;
+        for _ in 0..2 {
+            let w = Tensor::<2>::from_data(
+                TensorData::new((0..3 * n).map(|i| 1.0 + i as f32).collect::<Vec<_>>(), [n, 3]),
+                &device,
+            );
+            let loss = (model.means.val() * w.clone()).powi_scalar(2).sum()
+                + (model.raw_scales.val() * w).sum()
+                + model.rotations.val().powi_scalar(2).sum()
+                + model.field.forward(model.means.val()).sum();
+            let grads = GradientsParams::from_grads(loss.backward(), &model);
+            let lr = ModuleLrScheduler::new(ConstantLr::new(0.01)).step();
+            model = optim.step(lr, model, grads);
+        }
+        let before_means = host_vec(model.means.val());
+        let id = model.means.id;
+        let (optim, before_moments) = moments(optim, id);
+        assert_eq!(before_moments.len(), 2, "Adam keeps two moments for the centres");
+
+        let plan = DensifyPlan {
+            keep: vec![0, 2, 4],
+            added: GaussianInit {
+                means: vec![9.0, 9.0, 9.0, 8.0, 8.0, 8.0],
+                raw_scales: vec![0.0; 6],
+                rotations: vec![1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0],
+            },
+            ..DensifyPlan::default()
+        };
+        let (model, optim) = apply(model, optim, &plan, &device).unwrap();
+        assert_eq!(model.len(), 5);
+        assert_eq!(model.means.val().dims(), [5, 3]);
+        assert_eq!(model.raw_scales.val().dims(), [5, 3]);
+        assert_eq!(model.rotations.val().dims(), [5, 4]);
+        let after_means = host_vec(model.means.val());
+        for (row, &old) in plan.keep.iter().enumerate() {
+            assert_eq!(after_means[3 * row..3 * row + 3], before_means[3 * old..3 * old + 3]);
+        }
+        assert_eq!(after_means[9..], [9.0, 9.0, 9.0, 8.0, 8.0, 8.0]);
+        let (mut optim, after_moments) = moments(optim, model.means.id);
+        for (before, after) in before_moments.iter().zip(&after_moments) {
+            assert_eq!(after.len(), 15);
+            for (row, &old) in plan.keep.iter().enumerate() {
+                assert_eq!(after[3 * row..3 * row + 3], before[3 * old..3 * old + 3]);
+                assert!(after[3 * row..3 * row + 3].iter().any(|v| *v != 0.0), "kept moments are non-zero");
+            }
+            assert!(after[9..].iter().all(|v| *v == 0.0), "new Gaussians start with zero moments");
+        }
+        // The optimizer keeps working on the new shapes.
+        let loss = model.means.val().powi_scalar(2).sum() + model.field.forward(model.means.val()).sum();
+        let grads = GradientsParams::from_grads(loss.backward(), &model);
+        let lr = ModuleLrScheduler::new(ConstantLr::new(0.01)).step();
+        let model = optim.step(lr, model, grads);
+        assert_eq!(model.means.val().dims(), [5, 3]);
+    }
+}

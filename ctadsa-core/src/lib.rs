@@ -1,12 +1,15 @@
 //! The method and its data: case folders, vessel trees and phantoms, the voxel projector used to
-//! synthesise DSA views, meshes, and (in later modules) the shape-completion model and metrics.
+//! synthesise DSA views, meshes, the shape-completion model (hash-grid field + Gaussians),
+//! its initialisation, losses, training loop and outputs, and the evaluation metrics.
 //! Units are millimetres in world coordinates (isocentre at the origin), as in `ctadsa-render`.
 
 pub mod case;
 pub mod config;
 pub mod densify;
 pub mod error;
+pub mod eval;
 pub mod export;
+pub mod icp;
 pub mod init;
 pub mod loss;
 pub mod mesh;

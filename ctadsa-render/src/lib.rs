@@ -1,20 +1,4 @@
-//! Differentiable cone-beam X-ray rendering of 3-D Gaussians for burn.
-//!
-//! A scene is a mixture of anisotropic 3-D Gaussians, density field
-//! `σ(x) = Σ ρ_i exp(−½ (x−μ_i)ᵀ Σ_i⁻¹ (x−μ_i))` with `Σ_i = R_i S_i² R_iᵀ`. Each detector pixel of
-//! a [`ConeBeamView`] gets the exact line integral of `σ` along the ray from the X-ray source
-//! through the pixel centre (closed form, no affine approximation), summed over Gaussians
-//! (X-ray attenuation adds; there is no compositing and no sorting). Units: mm for positions and
-//! scales, density × mm for pixel values.
-//!
-//! - [`render`] — `[V, H, W]` images, differentiable with respect to means, scales, rotations and
-//!   densities on any autodiff device; [`render_with_stats`] also hands out the per-Gaussian
-//!   screen-space gradient statistic used for densification.
-//! - [`voxelize`] — the same field at the centres of a [`VoxelGrid`].
-//!
-//! Backends: `Device::ndarray()` (CPU, rayon) and, with the `wgpu` feature, `Device::wgpu(..)`
-//! (CubeCL kernels), each with or without `.autodiff()`.
-
+#![doc = include_str!("../README.md")]
 #![allow(deprecated)] // burn-ndarray is deprecated in burn 0.22 in favour of burn-flex.
 
 mod autodiff;

@@ -1,0 +1,41 @@
+//! Every shipped configuration loads and validates, and every experiment matrix names configs
+//! that exist.
+
+use std::path::{Path, PathBuf};
+
+use ctadsa_core::config::Config;
+
+fn tomls(dir: &Path) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    for e in std::fs::read_dir(dir).unwrap() {
+        let p = e.unwrap().path();
+        if p.is_dir() {
+            out.extend(tomls(&p));
+        } else if p.extension().is_some_and(|x| x == "toml") {
+            out.push(p);
+        }
+    }
+    out
+}
+
+#[test]
+fn shipped_configs_load_and_matrices_point_at_them() {
+    let root = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/configs"));
+    let all = tomls(&root);
+    assert!(all.len() >= 8, "expected the paper, quick, baseline, ablation and experiment files");
+    for p in &all {
+        if p.parent().is_some_and(|d| d.ends_with("experiments")) {
+            let m: toml::Table = std::fs::read_to_string(p).unwrap().parse().unwrap();
+            for method in m["methods"].as_array().unwrap() {
+                let cfg = p.parent().unwrap().join(method["config"].as_str().unwrap());
+                assert!(cfg.exists(), "{}: {} does not exist", p.display(), cfg.display());
+            }
+        } else {
+            Config::load(Some(p), &[]).unwrap_or_else(|e| panic!("{}: {e}", p.display()));
+        }
+    }
+    let quick = Config::load(Some(&root.join("quick.toml")), &[]).unwrap();
+    let prior_only = Config::load(Some(&root.join("baselines/prior-only.toml")), &[]).unwrap();
+    assert_eq!(prior_only.init.n2, 0);
+    assert_eq!(prior_only.run, quick.run, "a baseline changes only what it says");
+}
