@@ -20,6 +20,7 @@ struct Cli {
 }
 
 #[derive(Subcommand)]
+#[allow(clippy::large_enum_variant)] // parsed once per process
 enum Command {
     /// Synthesise a case folder (views, prior, ground truth) from a vessel tree, a label volume,
     /// or the built-in procedural tree.

@@ -2,6 +2,8 @@
 //! large mean gradient, prune those with (almost) no density or outside the working box — and
 //! keep every parameter and both Adam moments consistent when the number of Gaussians changes:
 //! kept Gaussians keep their values and moments, new ones start with zero moments (as 3DGS).
+// Index loops over parallel arrays read more plainly than zipped iterators here.
+#![allow(clippy::needless_range_loop)]
 
 use std::collections::HashSet;
 

@@ -51,10 +51,10 @@ pub fn read_file(path: &Path) -> Result<Vec<u8>> {
 
 /// Writes a whole file (creating parent folders), naming it on failure.
 pub fn write_file(path: &Path, bytes: &[u8]) -> Result<()> {
-    if let Some(parent) = path.parent() {
-        if !parent.as_os_str().is_empty() {
-            std::fs::create_dir_all(parent).map_err(|e| CoreError::io(parent, e))?;
-        }
+    if let Some(parent) = path.parent()
+        && !parent.as_os_str().is_empty()
+    {
+        std::fs::create_dir_all(parent).map_err(|e| CoreError::io(parent, e))?;
     }
     std::fs::write(path, bytes).map_err(|e| CoreError::io(path, e))
 }

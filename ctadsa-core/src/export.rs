@@ -57,7 +57,8 @@ pub fn mc_level(volume: &Volume<f32>, level: f64, relative: bool) -> f64 {
     level * if pos.is_empty() { 1.0 } else { percentile(&pos, 99.9) }
 }
 
-/// `[target | render | |difference|]` of every view, one PNG per view.
+/// `[target | render | |difference|]` of every view, one PNG per view, magnified by an integer
+/// factor (nearest neighbour) so that each panel is at least 256 pixels wide.
 fn write_renders(dir: &Path, case: &Case, trainer: &Trainer, renders: &[Vec<f32>]) -> Result<()> {
     let names: Vec<String> = if trainer.cfg.run.views.is_empty() {
         case.file.views.iter().map(|v| v.name.clone()).collect()
@@ -86,7 +87,16 @@ fn write_renders(dir: &Path, case: &Case, trainer: &Trainer, renders: &[Vec<f32>
                 px(2, if d > 0.0 { [255, m, m] } else { [m, m, 255] }, &mut rgb);
             }
         }
-        write_rgb_or_grey(&dir.join(format!("renders/{name}.png")), (3 * w) as u32, h as u32, rgb, 3)?;
+        let f = (256 / w.max(1)).max(1);
+        let (big_w, big_h) = (3 * w * f, h * f);
+        let mut big = vec![0u8; 3 * big_w * big_h];
+        for y in 0..big_h {
+            for x in 0..big_w {
+                let (i, j) = (3 * (y * big_w + x), 3 * ((y / f) * stride + x / f));
+                big[i..i + 3].copy_from_slice(&rgb[j..j + 3]);
+            }
+        }
+        write_rgb_or_grey(&dir.join(format!("renders/{name}.png")), big_w as u32, big_h as u32, big, 3)?;
     }
     Ok(())
 }
@@ -153,20 +163,21 @@ pub fn write_outputs(dir: &Path, case: &Case, trainer: &Trainer) -> Result<RunSu
         ));
     }
     write_file(&dir.join("loss.csv"), csv.as_bytes())?;
-    let pick = |f: fn(&crate::train::StepLog) -> f64| h.iter().map(|s| (s.iteration as f64, f(s))).collect::<Vec<_>>();
-    line_plot(
-        &dir.join("loss.png"),
-        "TRAINING LOSS",
-        "ITERATION",
-        "LOSS (LOG)",
-        &[
-            Series { name: "TOTAL".into(), points: pick(|s| s.loss), rgb: PALETTE[5] },
-            Series { name: "L1".into(), points: pick(|s| s.l1), rgb: PALETTE[0] },
-            Series { name: "1-SSIM".into(), points: pick(|s| 1.0 - s.ssim), rgb: PALETTE[1] },
-            Series { name: "FN".into(), points: pick(|s| s.fn_loss), rgb: PALETTE[2] },
-        ],
-        true,
-    )?;
+    // Log scale: a term is drawn where it is positive; terms that never are (switched off) are left out.
+    let pick = |f: fn(&crate::train::StepLog) -> f64| {
+        h.iter().map(|s| (s.iteration as f64, f(s))).filter(|p| p.1 > 0.0).collect::<Vec<_>>()
+    };
+    let series: Vec<Series> = [
+        Series { name: "TOTAL".into(), points: pick(|s| s.loss), rgb: PALETTE[5] },
+        Series { name: "L1".into(), points: pick(|s| s.l1), rgb: PALETTE[0] },
+        Series { name: "1-SSIM".into(), points: pick(|s| 1.0 - s.ssim), rgb: PALETTE[1] },
+        Series { name: "FN".into(), points: pick(|s| s.fn_loss), rgb: PALETTE[2] },
+        Series { name: "PA".into(), points: pick(|s| s.pa_loss), rgb: PALETTE[3] },
+    ]
+    .into_iter()
+    .filter(|s| !s.points.is_empty())
+    .collect();
+    line_plot(&dir.join("loss.png"), "TRAINING LOSS", "ITERATION", "LOSS (LOG)", &series, true)?;
     // Pictures of the mesh: prior in red, the rest of the completed mesh in blue.
     let prior = case.prior_mesh()?;
     let mut parts = vec![Coloured { mesh: &mesh, rgb: [60, 120, 220] }];

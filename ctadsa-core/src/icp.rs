@@ -1,6 +1,8 @@
 //! Rigid point-to-point ICP (for `--icp` parity with the reference evaluation): each iteration
 //! matches every source point to its nearest target point (k-d tree) and solves the best rigid
 //! motion in closed form (Horn's quaternion method; the 4 × 4 eigenproblem by Jacobi rotations).
+// Index loops over parallel arrays read more plainly than zipped iterators here.
+#![allow(clippy::needless_range_loop)]
 
 use glam::{DMat3, DQuat, DVec3};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};

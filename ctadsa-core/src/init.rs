@@ -138,13 +138,13 @@ fn back_project(
                     let mut log_sum = 0.0;
                     let mut sum = 0.0;
                     for ((v, m), img) in views.iter().zip(masks).zip(values) {
-                        if let Some(px) = pixel_of(v, c) {
-                            if m.data[px] {
-                                supported += 1;
-                                let val = (img.data[px] as f64).max(1e-12);
-                                log_sum += val.ln();
-                                sum += val;
-                            }
+                        if let Some(px) = pixel_of(v, c)
+                            && m.data[px]
+                        {
+                            supported += 1;
+                            let val = (img.data[px] as f64).max(1e-12);
+                            log_sum += val.ln();
+                            sum += val;
                         }
                     }
                     let keep = if intersect { supported == views.len() } else { supported > 0 };

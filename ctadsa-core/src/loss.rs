@@ -181,11 +181,16 @@ impl PriorAnchor {
     pub fn targets(&self, centres: &[f32]) -> (Vec<usize>, Vec<f32>) {
         let k = std::num::NonZero::new(self.k.max(1)).expect("k ≥ 1");
         let queries: Vec<[f64; 3]> = centres.chunks_exact(3).map(|c| [c[0] as f64, c[1] as f64, c[2] as f64]).collect();
-        let results = self.tree.query_batch(&queries).nearest_n::<SquaredEuclidean<f64>>(k).execute();
         let r2 = self.radius_mm * self.radius_mm;
+        // Cheap nearest-one pass first; the k-NN search runs only for centres within r.
+        let nearest = self.tree.query_batch(&queries).nearest_one::<SquaredEuclidean<f64>>().execute();
+        let near: Vec<usize> = (0..queries.len()).filter(|&i| nearest[i].distance <= r2).collect();
+        let near_queries: Vec<[f64; 3]> = near.iter().map(|&i| queries[i]).collect();
+        let knn = self.tree.query_batch(&near_queries).nearest_n::<SquaredEuclidean<f64>>(k).execute();
+        let results: Vec<(usize, &[_])> = near.iter().copied().zip(knn.iter()).collect();
         let mut idx = Vec::new();
         let mut tgt = Vec::new();
-        for (i, res) in results.iter().enumerate() {
+        for &(i, res) in &results {
             if res.first().is_some_and(|n| n.distance <= r2) {
                 let mut m = [0.0f64; 3];
                 for n in res.iter() {

@@ -340,11 +340,11 @@ impl Trainer {
         times.losses = clock.elapsed().as_secs_f64();
         let clock = Instant::now();
         let grads = loss.backward();
-        if self.densify_active() {
-            if let Some(g) = probe.grad(&grads) {
-                let host: Vec<f32> = host_vec(g);
-                self.stats.add(&host);
-            }
+        if self.densify_active()
+            && let Some(g) = probe.grad(&grads)
+        {
+            let host: Vec<f32> = host_vec(g);
+            self.stats.add(&host);
         }
         let grads = GradientsParams::from_grads(grads, &model);
         times.backward = clock.elapsed().as_secs_f64();
@@ -354,7 +354,7 @@ impl Trainer {
         self.model = Some(model);
         self.iteration += 1;
         let d = &cfg.densify;
-        if d.enabled && self.iteration > d.from && self.iteration <= d.until && self.iteration % d.every == 0 {
+        if d.enabled && self.iteration > d.from && self.iteration <= d.until && self.iteration.is_multiple_of(d.every) {
             let clock = Instant::now();
             self.densify()?;
             times.densify = clock.elapsed().as_secs_f64();

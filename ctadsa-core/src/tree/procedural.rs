@@ -4,6 +4,8 @@
 //! and joined to the segment that minimises the added branch length, at the centroid of the
 //! segment's ends and the new terminal. Radii follow Murray's law with equal terminal flows:
 //! `r = r_terminal · (terminals downstream)^(1/γ)`, γ = 3.
+// Index loops over parallel arrays read more plainly than zipped iterators here.
+#![allow(clippy::needless_range_loop)]
 
 use glam::DVec3;
 use rand::{RngExt, SeedableRng};

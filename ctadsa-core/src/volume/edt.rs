@@ -186,7 +186,7 @@ mod tests {
         let mut s = 12345u64;
         for v in &mut mask.data {
             s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            *v = ((s >> 33) % 5 != 0) as u8;
+            *v = !(s >> 33).is_multiple_of(5) as u8;
         }
         let fast = squared_edt(&mask);
         let slow = brute(&mask);

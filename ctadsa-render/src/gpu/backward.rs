@@ -1,6 +1,8 @@
 //! CubeCL backward kernel: one unit per Gaussian walks its footprint in every view, sums the
 //! camera-frame gradient terms, moves them to the world frame and chains them to the scales and
 //! the quaternion (`cpu::backward`, line by line). No atomics: each unit writes its own outputs.
+// CubeCL kernels: `x * -1.0` keeps the expression in the kernel IR's binary-op form.
+#![allow(clippy::neg_multiply)]
 
 use burn_cubecl::cubecl;
 use cubecl::prelude::*;

@@ -2,6 +2,8 @@
 //! precision and covariance, the per-view set-up of the exact line integral, row spans of the
 //! k-σ footprint, and the chain rule from `∂L/∂Q` to scales and quaternions.
 //! Formulas and names follow `cpu::math` line by line; the CPU code is the reference.
+// CubeCL kernels: `RangeInclusive::contains` is not available inside `#[cube]` functions.
+#![allow(clippy::manual_range_contains)]
 
 use burn_cubecl::cubecl;
 use cubecl::prelude::*;
