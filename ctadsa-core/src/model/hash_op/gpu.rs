@@ -10,22 +10,9 @@ use burn_cubecl::kernel::into_contiguous;
 use burn_cubecl::tensor::CubeTensor;
 use burn_cubecl::{CubeBackend, cubecl};
 
-use crate::model::hash_grid::{HASH_P1, HASH_P2, HashGridConfig};
+use ctadsa_render::gpu::math::atomic_add_f32;
 
-#[cube]
-fn atomic_add(ptr: &mut Atomic<u32>, value: f32) {
-    if value != 0.0 {
-        let mut v = ptr.load();
-        loop {
-            let prev = v;
-            let new = (f32::from_bits(v) + value).to_bits();
-            v = ptr.compare_exchange_weak(v, new);
-            if prev == v {
-                break;
-            }
-        }
-    }
-}
+use crate::model::hash_grid::{HASH_P1, HASH_P2, HashGridConfig};
 
 /// `meta` per level: `[resolution, r + 1, dense (0/1), base row]`.
 #[cube]
@@ -128,7 +115,7 @@ fn hash_backward_kernel(
             gx += dx * g * t;
             gy += dy * g * t;
             gz += dz * g * t;
-            atomic_add(&mut grad_tables[(f * stride + row) as usize], w * g);
+            atomic_add_f32(&mut grad_tables[(f * stride + row) as usize], w * g);
         }
     }
     grad_u_levels[3 * id] = gx;
