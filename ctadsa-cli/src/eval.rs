@@ -34,6 +34,9 @@ pub struct EvalArgs {
     /// Rigidly align the prediction to the ground truth by ICP first (reference parity).
     #[arg(long)]
     icp: bool,
+    /// Drop connected components of the prediction with less surface than this (mm²) first.
+    #[arg(long, default_value_t = 0.0)]
+    min_island_mm2: f64,
     /// Write the report as JSON here (default: print it after the table).
     #[arg(long)]
     json: Option<PathBuf>,
@@ -69,7 +72,13 @@ pub fn print_report(r: &EvalReport) {
 
 pub fn run(args: EvalArgs) -> Result<()> {
     anyhow::ensure!(args.samples >= 1 || args.vertices, "--samples must be ≥ 1");
-    let options = EvalOptions { samples: args.samples, seed: args.seed, vertices: args.vertices, icp: args.icp };
+    let options = EvalOptions {
+        samples: args.samples,
+        seed: args.seed,
+        vertices: args.vertices,
+        icp: args.icp,
+        min_island_mm2: args.min_island_mm2,
+    };
     let split = match (&args.prior, &args.missing) {
         (Some(p), Some(m)) => Some((p.as_path(), m.as_path())),
         _ => None,

@@ -6,7 +6,7 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use ctadsa_core::projector::noise::NoiseModel;
 use ctadsa_core::synth::presets::GeometryPreset;
-use ctadsa_core::synth::{Anatomy, SynthConfig, synthesize};
+use ctadsa_core::synth::{Anatomy, PoseErrorSpec, SynthConfig, synthesize};
 use ctadsa_core::tree::prior::PriorThreshold;
 use ctadsa_core::tree::procedural::ProceduralTree;
 
@@ -77,6 +77,13 @@ pub struct SynthArgs {
     /// Sub-samples per voxel edge for vessel occupancy.
     #[arg(long, default_value_t = 2)]
     supersample: usize,
+    /// Simulated registration error: image every view but the first with its pose moved by
+    /// this translation (mm, random direction) while the case keeps the nominal pose.
+    #[arg(long, default_value_t = 0.0)]
+    pose_error_mm: f64,
+    /// Simulated registration error: rotation (degrees, random axis through the isocentre).
+    #[arg(long, default_value_t = 0.0)]
+    pose_error_deg: f64,
 }
 
 fn three(v: &Option<Vec<f64>>, what: &str) -> Result<[f64; 3]> {
@@ -112,6 +119,11 @@ pub fn config_from(args: &SynthArgs, anatomy: Anatomy, name: String) -> Result<S
         },
         normalise: args.normalise,
         priors,
+        pose_error: (args.pose_error_mm != 0.0 || args.pose_error_deg != 0.0).then_some(PoseErrorSpec {
+            translation_mm: args.pose_error_mm,
+            rotation_deg: args.pose_error_deg,
+            seed: args.seed,
+        }),
     })
 }
 

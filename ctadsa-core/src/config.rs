@@ -228,11 +228,51 @@ pub struct OutputConfig {
     pub mesh_format: String,
     /// Surface samples for metrics.
     pub metric_samples: usize,
+    /// Connected components of the extracted surface with less area than this (mm²) are
+    /// dropped (floaters); 0 keeps everything. The unfiltered surface is kept as `mesh-raw.*`.
+    pub min_island_mm2: f64,
 }
 
 impl Default for OutputConfig {
     fn default() -> Self {
-        Self { mc_level: 0.25, mc_relative: true, voxel_mm: 0.0, mesh_format: "obj".into(), metric_samples: 50_000 }
+        Self {
+            mc_level: 0.25,
+            mc_relative: true,
+            voxel_mm: 0.0,
+            mesh_format: "obj".into(),
+            metric_samples: 50_000,
+            min_island_mm2: 0.0,
+        }
+    }
+}
+
+/// `[pose]`: refinement of each view's pose (a small rigid correction, 6 parameters per view)
+/// jointly with the Gaussians, to absorb registration error. Off by default.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PoseConfig {
+    pub enabled: bool,
+    /// First iteration at which the poses move (the Gaussians settle first).
+    pub start: usize,
+    /// Adam learning rate of the rotation corrections (rad), decaying from the first to the
+    /// second value over the run.
+    pub lr_rotation_rad: [f64; 2],
+    /// Adam learning rate of the translation corrections (mm).
+    pub lr_translation_mm: [f64; 2],
+    /// Keep the first view fixed (the reference frame); otherwise the prior alone holds the
+    /// global frame.
+    pub fix_first_view: bool,
+}
+
+impl Default for PoseConfig {
+    fn default() -> Self {
+        Self {
+            enabled: false,
+            start: 0,
+            lr_rotation_rad: [5e-4, 5e-5],
+            lr_translation_mm: [0.05, 0.005],
+            fix_first_view: true,
+        }
     }
 }
 
@@ -248,6 +288,7 @@ pub struct Config {
     pub loss: LossConfig,
     pub densify: DensifyConfig,
     pub output: OutputConfig,
+    pub pose: PoseConfig,
 }
 
 fn check(ok: bool, key: &str, what: impl std::fmt::Display) -> Result<()> {
@@ -365,6 +406,8 @@ impl Config {
             ("optim.lr_scales", self.optim.lr_scales),
             ("optim.lr_rotations", self.optim.lr_rotations),
             ("optim.lr_field", self.optim.lr_field),
+            ("pose.lr_rotation_rad", self.pose.lr_rotation_rad),
+            ("pose.lr_translation_mm", self.pose.lr_translation_mm),
         ] {
             check(r.iter().all(|v| v.is_finite() && *v >= 0.0), k, "learning rates must be finite and ≥ 0")?;
         }
@@ -376,6 +419,7 @@ impl Config {
         check(self.loss.pa_radius_mm > 0.0, "loss.pa_radius_mm", "must be > 0")?;
         check(self.densify.every >= 1, "densify.every", "must be ≥ 1")?;
         check(self.densify.grad_threshold > 0.0, "densify.grad_threshold", "must be > 0")?;
+        check(self.output.min_island_mm2 >= 0.0, "output.min_island_mm2", "must be ≥ 0")?;
         check(self.output.mc_level > 0.0, "output.mc_level", "must be > 0")?;
         check(
             ["obj", "ply", "stl"].contains(&self.output.mesh_format.as_str()),

@@ -25,11 +25,14 @@ pub struct EvalOptions {
     /// Rigidly align the prediction to the ground truth first (trimmed ICP keeping the closest 80%
     /// of correspondences, at most 75 steps, as the reference evaluation).
     pub icp: bool,
+    /// Drop connected components of the prediction smaller than this surface area (mm²) first;
+    /// 0 keeps everything.
+    pub min_island_mm2: f64,
 }
 
 impl Default for EvalOptions {
     fn default() -> Self {
-        Self { samples: 20_000, seed: 1234, vertices: false, icp: false }
+        Self { samples: 20_000, seed: 1234, vertices: false, icp: false, min_island_mm2: 0.0 }
     }
 }
 
@@ -65,7 +68,10 @@ pub fn evaluate(pred: &TriMesh, gt: &TriMesh, split: Option<(&TriMesh, &TriMesh)
 
 /// [`evaluate`] on mesh files (OBJ, PLY or STL).
 pub fn evaluate_files(pred: &Path, gt: &Path, split: Option<(&Path, &Path)>, o: &EvalOptions) -> Result<EvalReport> {
-    let pred = read_mesh(pred)?;
+    let mut pred = read_mesh(pred)?;
+    if o.min_island_mm2 > 0.0 {
+        pred = pred.without_islands_below(o.min_island_mm2).0;
+    }
     let gt = read_mesh(gt)?;
     let split = match split {
         Some((p, m)) => Some((read_mesh(p)?, read_mesh(m)?)),

@@ -8,8 +8,8 @@ use burn::module::Module;
 use glam::DVec3;
 use serde::Serialize;
 
-use crate::case::Case;
 use crate::case::images::write_rgb_or_grey;
+use crate::case::{Case, ViewGeometry};
 use crate::error::{Result, write_file};
 use crate::mesh::TriMesh;
 use crate::mesh::io::{read_mesh, write_mesh, write_point_ply};
@@ -19,9 +19,11 @@ use crate::mesh::sample::sample_surface;
 use crate::metrics::{RegionScores, percentile, region_scores};
 use crate::model::host_vec;
 use crate::plot::{PALETTE, Series, line_plot};
+use crate::pose::{PoseCorrection, PoseError, corrected_view, pose_errors};
 use crate::train::Trainer;
 use crate::volume::nifti_io::write_nifti;
 use crate::volume::{Grid, Volume};
+use ctadsa_render::ConeBeamView;
 
 /// Numbers of a finished run.
 #[derive(Debug, Clone, Serialize)]
@@ -33,10 +35,15 @@ pub struct RunSummary {
     /// Iso-level of the extracted surface (density units) and the triangle count.
     pub mc_level: f64,
     pub mesh_triangles: usize,
+    /// Connected components dropped as floaters (`output.min_island_mm2`).
+    pub islands_dropped: usize,
     pub final_loss: f64,
     pub metrics: Option<RegionScores>,
     /// The same metrics for the prior alone (what the run started from), for comparison.
     pub prior_metrics: Option<RegionScores>,
+    /// With pose refinement on a case whose true view corrections are known: how far each
+    /// refined view is from the truth.
+    pub pose_errors: Option<Vec<PoseError>>,
 }
 
 /// The density field on a grid over the working box.
@@ -123,6 +130,54 @@ pub fn case_metrics(case: &Case, pred: &TriMesh, n: usize) -> Result<Option<Regi
     Ok(Some(region_scores(&pred_pts, &gt_pts, split.as_ref().map(|(p, m)| (p.as_slice(), m.as_slice())))))
 }
 
+/// With pose refinement: writes `poses.json` (the corrections and the refined geometry of every
+/// view of the run, as world-to-camera matrices at the case's detector) and, when the case knows
+/// the true corrections, returns how far the refined views are from them.
+fn write_poses(dir: &Path, case: &Case, trainer: &Trainer, prior: Option<&TriMesh>) -> Result<Option<Vec<PoseError>>> {
+    let Some(learned) = trainer.pose_corrections() else {
+        return Ok(None);
+    };
+    let indices: Vec<usize> =
+        if trainer.cfg.run.views.is_empty() { (0..case.views.len()).collect() } else { trainer.cfg.run.views.clone() };
+    let nominal: Vec<(usize, ConeBeamView)> = indices.iter().map(|&i| (i, case.views.views()[i].clone())).collect();
+    let mut entries = Vec::new();
+    for ((i, view), c) in nominal.iter().zip(&learned) {
+        let refined = corrected_view(view, c)?;
+        let intr = refined.intrinsics();
+        let m = refined.world_to_camera().transpose().to_cols_array_2d();
+        entries.push(serde_json::json!({
+            "view": i,
+            "name": case.file.views[*i].name,
+            "rotation_deg": [c[0].to_degrees(), c[1].to_degrees(), c[2].to_degrees()],
+            "translation_mm": [c[3], c[4], c[5]],
+            "geometry": ViewGeometry::Matrix {
+                world_to_camera: m,
+                focal_px: intr.focal_px,
+                principal_px: intr.principal_px,
+                detector_px: [refined.width(), refined.height()],
+            },
+        }));
+    }
+    let text = serde_json::to_string_pretty(&serde_json::json!({
+        "convention": "view v sees world point x where the nominal view sees R(ω) x + t (rotation about the isocentre, then translation); geometry = the refined view",
+        "views": entries,
+    }))
+    .unwrap_or_default();
+    write_file(&dir.join("poses.json"), text.as_bytes())?;
+    let truth = case.file.ground_truth.as_ref().and_then(|g| g.view_corrections.as_ref());
+    let Some(truth) = truth else {
+        return Ok(None);
+    };
+    let truth: Vec<PoseCorrection> = indices.iter().map(|&i| truth.get(i).copied().unwrap_or([0.0; 6])).collect();
+    let points: Vec<DVec3> = match prior {
+        Some(p) if !p.vertices.is_empty() => {
+            p.vertices.iter().step_by((p.vertices.len() / 2000).max(1)).copied().collect()
+        }
+        _ => vec![DVec3::ZERO],
+    };
+    Ok(Some(pose_errors(&nominal, &learned, &truth, &points)?))
+}
+
 /// Writes the outputs of a run into `dir`.
 pub fn write_outputs(dir: &Path, case: &Case, trainer: &Trainer) -> Result<RunSummary> {
     let cfg = &trainer.cfg;
@@ -148,7 +203,14 @@ pub fn write_outputs(dir: &Path, case: &Case, trainer: &Trainer) -> Result<RunSu
     let volume = density_volume(trainer)?;
     write_nifti(&dir.join("density.nii.gz"), &volume, "ctadsa density (per mm)")?;
     let level = mc_level(&volume, cfg.output.mc_level, cfg.output.mc_relative);
-    let mesh = extract_isosurface(&volume, level as f32);
+    let raw_mesh = extract_isosurface(&volume, level as f32);
+    let (mesh, islands_dropped) = if cfg.output.min_island_mm2 > 0.0 {
+        let (kept, dropped) = raw_mesh.without_islands_below(cfg.output.min_island_mm2);
+        write_mesh(&dir.join(format!("mesh-raw.{}", cfg.output.mesh_format)), &raw_mesh)?;
+        (kept, dropped)
+    } else {
+        (raw_mesh, 0)
+    };
     write_mesh(&dir.join(format!("mesh.{}", cfg.output.mesh_format)), &mesh)?;
     // Renders.
     let renders = trainer.render_all()?;
@@ -192,6 +254,7 @@ pub fn write_outputs(dir: &Path, case: &Case, trainer: &Trainer) -> Result<RunSu
         Some(p) => case_metrics(case, p, n)?,
         None => None,
     };
+    let pose_errors = write_poses(dir, case, trainer, prior.as_ref())?;
     let summary = RunSummary {
         iterations: trainer.iteration,
         gaussians: densities.len(),
@@ -199,9 +262,11 @@ pub fn write_outputs(dir: &Path, case: &Case, trainer: &Trainer) -> Result<RunSu
         n2: trainer.n2,
         mc_level: level,
         mesh_triangles: mesh.faces.len(),
+        islands_dropped,
         final_loss: h.last().map_or(f64::NAN, |s| s.loss),
         metrics,
         prior_metrics,
+        pose_errors,
     };
     write_file(&dir.join("summary.json"), serde_json::to_string_pretty(&summary).unwrap_or_default().as_bytes())?;
     Ok(summary)

@@ -18,6 +18,7 @@ pub mod mesh;
 pub mod metrics;
 pub mod model;
 pub mod plot;
+pub mod pose;
 pub mod projector;
 pub mod synth;
 pub mod train;

@@ -27,6 +27,7 @@ use crate::loss::{LossTargets, PriorAnchor};
 use crate::mesh::TriMesh;
 use crate::mesh::sample::sample_surface;
 use crate::model::{GaussianInit, GaussianModel, ScaleBounds, host_vec};
+use crate::pose::{PoseCorrection, ViewPoses};
 use crate::volume::BoxMm;
 
 /// Seconds spent per stage in one step.
@@ -140,6 +141,8 @@ pub struct Trainer {
     pub n1: usize,
     pub n2: usize,
     pub settings: RenderSettings,
+    /// Per-view pose corrections and their optimizer (`[pose] enabled`).
+    poses: Option<(ViewPoses, ModuleOptimizer)>,
 }
 
 fn new_optimizer(cfg: &Config) -> Result<ModuleOptimizer> {
@@ -216,7 +219,12 @@ impl Trainer {
         });
         let n = model.len();
         let settings = RenderSettings { k_sigma: cfg.model.k_sigma };
+        let poses = cfg.pose.enabled.then(|| {
+            let fixed: &[usize] = if cfg.pose.fix_first_view { &[0] } else { &[] };
+            (ViewPoses::new(views.len(), fixed, &device), AdamConfig::new().with_epsilon(1e-12).init())
+        });
         Ok(Self {
+            poses,
             optim: new_optimizer(&cfg)?,
             cfg,
             device,
@@ -299,7 +307,17 @@ impl Trainer {
         times.field = clock.elapsed().as_secs_f64();
         let clock = Instant::now();
         let probe = Tensor::<2>::zeros([n, 2], &self.device).require_grad();
-        let image = render_with_stats(&gaussians, probe.clone(), &views, &self.settings)?;
+        let image = match &self.poses {
+            None => render_with_stats(&gaussians, probe.clone(), &views, &self.settings)?,
+            Some((poses, _)) => {
+                let mut per_view = Vec::with_capacity(idx.len());
+                for (k, &v) in idx.iter().enumerate() {
+                    let seen = poses.apply(&gaussians, v);
+                    per_view.push(render_with_stats(&seen, probe.clone(), &views.select(&[k])?, &self.settings)?);
+                }
+                Tensor::cat(per_view, 0)
+            }
+        };
         times.render = clock.elapsed().as_secs_f64();
         let clock = Instant::now();
         let (render_loss, l1, ssim) = targets.render_loss(image.clone(), cfg.loss.lambda_dssim);
@@ -339,7 +357,23 @@ impl Trainer {
         }
         times.losses = clock.elapsed().as_secs_f64();
         let clock = Instant::now();
-        let grads = loss.backward();
+        let mut grads = loss.backward();
+        if let Some((poses, mut optim)) = self.poses.take() {
+            let pose_grads = GradientsParams::from_module(&mut grads, &poses);
+            let poses = if t >= cfg.pose.start {
+                let p = &cfg.pose;
+                let lr = ModuleLrScheduler::new(ConstantLr::new(decayed(p.lr_rotation_rad, t, cfg.run.iterations)))
+                    .with_group(
+                        ParamGroup::from_path("translations_mm"),
+                        ConstantLr::new(decayed(p.lr_translation_mm, t, cfg.run.iterations)),
+                    )
+                    .step();
+                optim.step(lr, poses, pose_grads)
+            } else {
+                poses
+            };
+            self.poses = Some((poses, optim));
+        }
         if self.densify_active()
             && let Some(g) = probe.grad(&grads)
         {
@@ -408,6 +442,11 @@ impl Trainer {
         self.optim
             .save(ck.join("optim.bpk"))
             .map_err(|e| CoreError::format(&ck.join("optim.bpk"), format!("cannot save optimizer: {e:?}")))?;
+        if let Some((poses, optim)) = &self.poses {
+            let (mp, op) = (ck.join("poses.bpk"), ck.join("poses-optim.bpk"));
+            poses.clone().save_file(&mp).map_err(|e| CoreError::format(&mp, format!("cannot save poses: {e:?}")))?;
+            optim.save(&op).map_err(|e| CoreError::format(&op, format!("cannot save pose optimizer: {e:?}")))?;
+        }
         let stats: Vec<u8> = self.stats.sum.iter().chain(&self.stats.count).flat_map(|v| v.to_le_bytes()).collect();
         write_file(&ck.join("stats.bin"), &stats)?;
         let state = CheckpointState {
@@ -466,6 +505,15 @@ impl Trainer {
         t.optim = optim
             .load(&optim_path)
             .map_err(|e| CoreError::format(&optim_path, format!("cannot load optimizer state: {e:?}")))?;
+        if let Some((poses, optim)) = t.poses.take() {
+            let (mp, op) = (checkpoint.join("poses.bpk"), checkpoint.join("poses-optim.bpk"));
+            let poses = poses
+                .try_load_file(&mp)
+                .map_err(|e| CoreError::format(&mp, format!("cannot load view poses (was [pose] enabled?): {e:?}")))?;
+            let optim =
+                optim.load(&op).map_err(|e| CoreError::format(&op, format!("cannot load pose optimizer: {e:?}")))?;
+            t.poses = Some((poses, optim));
+        }
         let stats = read_file(&checkpoint.join("stats.bin"))?;
         let vals: Vec<f32> = stats.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
         if vals.len() == 2 * n {
@@ -501,10 +549,27 @@ impl Trainer {
     /// Final renders of all views `[V][H·W]`.
     pub fn render_all(&self) -> Result<Vec<Vec<f32>>> {
         let m = self.model().valid();
-        let img = ctadsa_render::render(&m.gaussians(), &self.views, &self.settings)?;
+        let gaussians = m.gaussians();
+        let img = match &self.poses {
+            None => ctadsa_render::render(&gaussians, &self.views, &self.settings)?,
+            Some((poses, _)) => {
+                let poses = poses.valid();
+                let mut per_view = Vec::with_capacity(self.views.len());
+                for v in 0..self.views.len() {
+                    let seen = poses.apply(&gaussians, v);
+                    per_view.push(ctadsa_render::render(&seen, &self.views.select(&[v])?, &self.settings)?);
+                }
+                Tensor::cat(per_view, 0)
+            }
+        };
         let (w, h) = self.views.image_size();
         let flat: Vec<f32> = host_vec(img);
         Ok(flat.chunks((w * h) as usize).map(<[f32]>::to_vec).collect())
+    }
+
+    /// The learned pose corrections of the run's views (`None` when pose refinement is off).
+    pub fn pose_corrections(&self) -> Option<Vec<PoseCorrection>> {
+        self.poses.as_ref().map(|(p, _)| p.corrections())
     }
 
     /// Centre of mass of the Gaussians (mm), for quick diagnostics.

@@ -166,6 +166,11 @@ pub struct GroundTruth {
     /// The centreline tree (SWC), when the case came from one.
     #[serde(default)]
     pub tree: Option<String>,
+    /// When the images were made with view poses that differ from the geometry written in the
+    /// case (a simulated registration error), the true correction of each view
+    /// (`ctadsa_core::pose` convention: `[ω (rad), t (mm)]`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub view_corrections: Option<Vec<[f64; 6]>>,
 }
 
 /// The content of `case.json`.

@@ -128,4 +128,19 @@ impl TriMesh {
         }
         out
     }
+
+    /// Keeps the connected components whose surface area is at least `min_area_mm2` (floaters
+    /// removed); returns the kept mesh and the number of components dropped.
+    pub fn without_islands_below(&self, min_area_mm2: f64) -> (TriMesh, usize) {
+        let mut out = TriMesh::default();
+        let mut dropped = 0;
+        for p in self.components() {
+            if p.area_mm2() >= min_area_mm2 {
+                out.append(&p);
+            } else {
+                dropped += 1;
+            }
+        }
+        (out, dropped)
+    }
 }

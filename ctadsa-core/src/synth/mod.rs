@@ -19,6 +19,7 @@ use crate::mesh::TriMesh;
 use crate::mesh::io::write_mesh;
 use crate::mesh::marching::extract_isosurface;
 use crate::mesh::render_png::{Coloured, standard_views, write_mesh_png};
+use crate::pose::{PoseCorrection, corrected_view, random_correction};
 use crate::projector::noise::NoiseModel;
 use crate::projector::project_volume;
 use crate::tree::VesselTree;
@@ -30,6 +31,8 @@ use crate::volume::nifti_io::{read_nifti, write_nifti};
 use crate::volume::rasterize::rasterize_segments;
 use crate::volume::{BoxMm, Grid, Volume};
 use presets::{GeometryPreset, view_preset};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
 
 /// Where the vessels come from.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -81,6 +84,20 @@ pub struct SynthConfig {
     pub normalise: bool,
     /// Prior thresholds; the first is the case's prior, all are written under `priors/`.
     pub priors: Vec<PriorThreshold>,
+    /// Simulated registration error: every view but the first is imaged with a pose moved by
+    /// this much, while the case records the nominal pose (the truth goes to ground truth).
+    #[serde(default)]
+    pub pose_error: Option<PoseErrorSpec>,
+}
+
+/// Size of a simulated pose error per view.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct PoseErrorSpec {
+    /// Translation (mm) in a random direction.
+    pub translation_mm: f64,
+    /// Rotation (degrees) about a random axis through the isocentre.
+    pub rotation_deg: f64,
+    pub seed: u64,
 }
 
 impl Default for SynthConfig {
@@ -100,6 +117,7 @@ impl Default for SynthConfig {
             noise: NoiseModel::default(),
             normalise: false,
             priors: vec![PriorThreshold::DiameterMm(1.5)],
+            pose_error: None,
         }
     }
 }
@@ -282,7 +300,17 @@ pub fn synthesize(cfg: &SynthConfig, out: &Path, progress: &mut dyn FnMut(&str))
         .collect();
     let views: Vec<ConeBeamView> = geoms.iter().map(ConeBeamView::from_tigre).collect::<std::result::Result<_, _>>()?;
     let contrast = r.complete.map(|v| v * cfg.contrast_per_mm as f32);
-    let mut images = project_volume(&contrast, &views);
+    let view_corrections: Option<Vec<PoseCorrection>> = cfg.pose_error.map(|e| {
+        let mut rng = ChaCha8Rng::seed_from_u64(e.seed ^ 0x9053);
+        (0..views.len())
+            .map(|i| if i == 0 { [0.0; 6] } else { random_correction(e.translation_mm, e.rotation_deg, &mut rng) })
+            .collect()
+    });
+    let imaged: Vec<ConeBeamView> = match &view_corrections {
+        None => views.clone(),
+        Some(c) => views.iter().zip(c).map(|(v, c)| corrected_view(v, c)).collect::<std::result::Result<_, _>>()?,
+    };
+    let mut images = project_volume(&contrast, &imaged);
     for (i, img) in images.iter_mut().enumerate() {
         cfg.noise.apply(img, i as u64);
     }
@@ -352,6 +380,7 @@ pub fn synthesize(cfg: &SynthConfig, out: &Path, progress: &mut dyn FnMut(&str))
             missing_mesh: Some(format!("priors/{tag0}/missing.obj")),
             labels: Some("gt/occupancy.nii.gz".into()),
             tree: r.tree.as_ref().map(|_| "gt/tree.swc".into()),
+            view_corrections,
         }),
     };
     case.save(out)?;
