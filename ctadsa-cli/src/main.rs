@@ -2,6 +2,7 @@
 
 mod backend;
 mod bench;
+mod clinical;
 mod complete;
 mod eval;
 mod experiment;
@@ -37,6 +38,15 @@ enum Command {
     Experiment(experiment::ExperimentArgs),
     /// Benchmarks (renderer, projector) with a table of timings and throughput.
     Bench(bench::BenchArgs),
+    /// Make a case from DSA runs (DICOM XA): subtraction, frame choice, MIP, C-arm geometry from
+    /// the positioner tags, and a prior (mesh or CTA label volume).
+    ImportDsa(clinical::ImportDsaArgs),
+    /// Make a prior mesh from a CTA label volume (NIfTI): chosen labels, small islands removed,
+    /// optionally cut to what a case's views see.
+    Prior(clinical::PriorArgs),
+    /// Write a case's views as simulated DSA runs (multi-frame XA DICOM: mask + contrast bolus),
+    /// to try the DICOM path without patient data.
+    ExportDicom(clinical::ExportDicomArgs),
 }
 
 fn main() -> Result<()> {
@@ -49,5 +59,8 @@ fn main() -> Result<()> {
         Command::Eval(args) => eval::run(args),
         Command::Experiment(args) => experiment::run(args),
         Command::Bench(args) => bench::run(args),
+        Command::ImportDsa(args) => clinical::import_dsa(args),
+        Command::Prior(args) => clinical::prior(args),
+        Command::ExportDicom(args) => clinical::export_dicom(args),
     }
 }

@@ -6,6 +6,7 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod case;
+pub mod clinical;
 pub mod config;
 pub mod densify;
 pub mod error;

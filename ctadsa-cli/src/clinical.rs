@@ -1,0 +1,284 @@
+//! `ctadsa import-dsa` (DICOM runs + a prior → a case) and `ctadsa prior` (CTA labels → prior).
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use clap::Args;
+use ctadsa_core::case::Case;
+use ctadsa_core::clinical::dsa::Subtraction;
+use ctadsa_core::clinical::import::{DsaOptions, DsaView, dsa_view, write_dsa_case};
+use ctadsa_core::clinical::prior::{LabelPriorOptions, Visibility, prior_from_labels};
+use ctadsa_core::clinical::xa::read_xa_run;
+use ctadsa_core::mesh::TriMesh;
+use ctadsa_core::mesh::io::{read_mesh, write_mesh};
+use ctadsa_render::ConeBeamView;
+
+/// Options shared by both commands for making the prior from a label volume.
+#[derive(Args, Clone)]
+pub struct LabelArgs {
+    /// Label values making the vessels (comma-separated; default: every non-zero label).
+    #[arg(long, value_delimiter = ',')]
+    label_ids: Vec<u32>,
+    /// Drop connected pieces of the prior surface smaller than this (mm²).
+    #[arg(long, default_value_t = 20.0)]
+    min_island_mm2: f64,
+    /// Shift (mm) added to the label volume's world coordinates, e.g. minus the isocentre's
+    /// position in CTA coordinates from a registration.
+    #[arg(long, value_delimiter = ',', num_args = 3, allow_hyphen_values = true)]
+    prior_shift_mm: Option<Vec<f64>>,
+    /// Put the centre of the prior's box at the isocentre (a rough start for pose refinement).
+    #[arg(long, conflicts_with = "prior_shift_mm")]
+    centre_prior: bool,
+    /// Keep only the part of the prior the views see: all (no cut), every, or any.
+    #[arg(long, default_value = "every")]
+    visible: String,
+}
+
+fn visibility(text: &str) -> Result<Visibility> {
+    Ok(match text {
+        "all" => Visibility::All,
+        "every" => Visibility::SeenByEveryView,
+        "any" => Visibility::SeenByAnyView,
+        other => bail!("--visible `{other}`: expected all, every or any"),
+    })
+}
+
+/// Builds the prior mesh from a label volume as the options say.
+fn label_prior(labels: &Path, a: &LabelArgs, views: &[ConeBeamView]) -> Result<(TriMesh, String)> {
+    let mut shift = match &a.prior_shift_mm {
+        Some(v) if v.len() == 3 => [v[0], v[1], v[2]],
+        Some(v) => bail!("--prior-shift-mm needs 3 values, got {}", v.len()),
+        None => [0.0; 3],
+    };
+    if a.centre_prior {
+        // Centre from the uncut surface, then build again with the shift and the visibility cut.
+        let o = LabelPriorOptions {
+            labels: a.label_ids.clone(),
+            min_island_mm2: a.min_island_mm2,
+            translation_mm: [0.0; 3],
+        };
+        let p = prior_from_labels(labels, &o, &[], Visibility::All)?;
+        let (lo, hi) = p.mesh.bounds_mm().context("empty prior")?;
+        shift = (-(lo + hi) * 0.5).to_array();
+    }
+    let o = LabelPriorOptions { labels: a.label_ids.clone(), min_island_mm2: a.min_island_mm2, translation_mm: shift };
+    let p = prior_from_labels(labels, &o, views, visibility(&a.visible)?)?;
+    eprintln!(
+        "prior from {}: {} voxels, {} triangles, {} islands < {} mm² dropped, {} triangles not visible; shift {:?} mm",
+        labels.display(),
+        p.voxels,
+        p.mesh.faces.len(),
+        p.islands_dropped,
+        a.min_island_mm2,
+        p.hidden_triangles,
+        shift
+    );
+    let description = format!(
+        "labels {:?} of {} (islands < {} mm² dropped, visibility `{}`, shift {:?} mm)",
+        a.label_ids,
+        labels.display(),
+        a.min_island_mm2,
+        a.visible,
+        shift
+    );
+    Ok((p.mesh, description))
+}
+
+#[derive(Args)]
+pub struct ImportDsaArgs {
+    /// A DSA run (multi-frame XA DICOM, uncompressed); once per view.
+    #[arg(long = "run", required = true)]
+    runs: Vec<PathBuf>,
+    /// Output case folder.
+    #[arg(long)]
+    out: PathBuf,
+    /// Subtraction: log (ln mask − ln fill), linear (mask − fill) or none (already subtracted).
+    #[arg(long, default_value = "log")]
+    subtraction: String,
+    /// Mask frames (0-based, comma-separated); default: the file's Mask Subtraction Sequence,
+    /// else frame 0.
+    #[arg(long, value_delimiter = ',')]
+    mask_frames: Vec<usize>,
+    /// MIP frame range `A-B` (0-based, inclusive); default: chosen from the contrast curve.
+    #[arg(long)]
+    frames: Option<String>,
+    /// With automatic frames, keep frames with at least this fraction of the peak contrast.
+    #[arg(long, default_value_t = 0.5)]
+    curve_fraction: f64,
+    /// Detector binning.
+    #[arg(long, default_value_t = 1)]
+    binning: u32,
+    /// Mirror the images left-right (on top of what Patient Orientation implies).
+    #[arg(long)]
+    flip_horizontal: bool,
+    /// Mirror the images top-bottom.
+    #[arg(long)]
+    flip_vertical: bool,
+    /// Prior surface mesh (OBJ/PLY/STL) already in the C-arm frame (mm, isocentre at 0).
+    #[arg(long, conflicts_with = "labels")]
+    prior: Option<PathBuf>,
+    /// CTA label volume (NIfTI) to make the prior from.
+    #[arg(long)]
+    labels: Option<PathBuf>,
+    #[command(flatten)]
+    label_args: LabelArgs,
+    /// Margin (mm) around the prior for the working volume.
+    #[arg(long, default_value_t = 10.0)]
+    margin_mm: f64,
+    /// Working voxel (mm).
+    #[arg(long, default_value_t = 0.4)]
+    voxel_mm: f64,
+}
+
+fn parse_range(text: &str) -> Result<std::ops::RangeInclusive<usize>> {
+    let (a, b) = text.split_once('-').with_context(|| format!("--frames `{text}`: expected A-B"))?;
+    let (a, b): (usize, usize) =
+        (a.trim().parse().context("--frames start")?, b.trim().parse().context("--frames end")?);
+    anyhow::ensure!(a <= b, "--frames `{text}`: start after end");
+    Ok(a..=b)
+}
+
+pub fn import_dsa(args: ImportDsaArgs) -> Result<()> {
+    let options = DsaOptions {
+        subtraction: Subtraction::parse(&args.subtraction)?,
+        mask_frames: (!args.mask_frames.is_empty()).then(|| args.mask_frames.clone()),
+        frames: args.frames.as_deref().map(parse_range).transpose()?,
+        curve_fraction: args.curve_fraction,
+        binning: args.binning,
+        flip_horizontal: args.flip_horizontal,
+        flip_vertical: args.flip_vertical,
+    };
+    let mut views: Vec<DsaView> = Vec::new();
+    for (i, path) in args.runs.iter().enumerate() {
+        let run = read_xa_run(path)?;
+        let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or("view");
+        let name = format!("{i}-{}", stem.replace(|c: char| !c.is_ascii_alphanumeric() && c != '-', "_"));
+        let v = dsa_view(&run, &name, &options)?;
+        eprintln!(
+            "{}: {} frames of {} × {} px, primary {:.1}°, secondary {:.1}°, DSD {} mm, DSO {} mm; masks {:?}, MIP {}–{}",
+            path.display(),
+            run.frames.len(),
+            run.columns,
+            run.rows,
+            run.geometry.primary_deg,
+            run.geometry.secondary_deg,
+            run.geometry.dsd_mm,
+            run.geometry.dso_mm,
+            v.mask_frames,
+            v.frames.start(),
+            v.frames.end()
+        );
+        views.push(v);
+    }
+    let render_views: Vec<ConeBeamView> =
+        views.iter().map(|v| ConeBeamView::from_tigre(&v.geometry)).collect::<Result<_, _>>()?;
+    let prior = match (&args.prior, &args.labels) {
+        (Some(p), _) => Some((read_mesh(p)?, format!("mesh {}", p.display()))),
+        (None, Some(l)) => Some(label_prior(l, &args.label_args, &render_views)?),
+        (None, None) => None,
+    };
+    if prior.is_none() {
+        eprintln!("no prior given (--prior or --labels): the case can only be reconstructed without one");
+    }
+    let name = args.out.file_name().and_then(|s| s.to_str()).unwrap_or("dsa-case").to_string();
+    write_dsa_case(
+        &args.out,
+        &name,
+        &views,
+        prior.as_ref().map(|(m, d)| (m, d.clone())),
+        args.margin_mm,
+        args.voxel_mm,
+        vec![],
+    )?;
+    // Read it back: the same checks `complete` will apply.
+    Case::load(&args.out).with_context(|| format!("the written case {} does not load", args.out.display()))?;
+    println!("case written to {}", args.out.display());
+    Ok(())
+}
+
+#[derive(Args)]
+pub struct PriorArgs {
+    /// CTA label volume (NIfTI).
+    #[arg(long)]
+    labels: PathBuf,
+    /// Output mesh (OBJ, PLY or STL).
+    #[arg(long)]
+    out: PathBuf,
+    /// A case whose views decide visibility (--visible every|any).
+    #[arg(long)]
+    case: Option<PathBuf>,
+    #[command(flatten)]
+    label_args: LabelArgs,
+}
+
+pub fn prior(args: PriorArgs) -> Result<()> {
+    let views = match &args.case {
+        Some(dir) => Case::load(dir)?.views.views().to_vec(),
+        None => Vec::new(),
+    };
+    let mut label_args = args.label_args.clone();
+    if views.is_empty() && label_args.visible != "all" {
+        eprintln!("no --case: no visibility cut");
+        label_args.visible = "all".into();
+    }
+    let (mesh, _) = label_prior(&args.labels, &label_args, &views)?;
+    write_mesh(&args.out, &mesh)?;
+    println!("prior mesh written to {} ({} triangles)", args.out.display(), mesh.faces.len());
+    Ok(())
+}
+
+#[derive(Args)]
+pub struct ExportDicomArgs {
+    /// A case with TIGRE (angle) geometry, e.g. from `ctadsa synth`.
+    #[arg(long)]
+    case: PathBuf,
+    /// Output folder: one multi-frame XA file per view.
+    #[arg(long)]
+    out: PathBuf,
+    /// Peak attenuation of the contrast (κ × largest line integral).
+    #[arg(long, default_value_t = 1.2)]
+    peak_attenuation: f32,
+    /// Store the frontal (first) run mirrored with Patient Orientation L\F, as displayed to a
+    /// viewer facing the patient.
+    #[arg(long)]
+    mirror_first: bool,
+}
+
+/// Writes simulated DSA runs (mask + 7 bolus frames) of a case's views as DICOM.
+pub fn export_dicom(args: ExportDicomArgs) -> Result<()> {
+    use ctadsa_core::case::ViewGeometry;
+    use ctadsa_core::clinical::simulate::simulated_run;
+    use ctadsa_core::clinical::xa::write_xa_run;
+    use ctadsa_render::TigreGeometry;
+    let case = Case::load(&args.case)?;
+    let max = case.images.iter().map(|i| i.max()).fold(0.0f32, f32::max);
+    anyhow::ensure!(max > 0.0, "{}: every image is 0", args.case.display());
+    for (i, (entry, img)) in case.file.views.iter().zip(&case.images).enumerate() {
+        let ViewGeometry::Tigre { dsd_mm, dso_mm, detector_px, pixel_mm, offset_mm, primary_deg, secondary_deg } =
+            entry.geometry
+        else {
+            bail!("view `{}` has matrix geometry; DICOM positioner tags need C-arm angles", entry.name);
+        };
+        anyhow::ensure!(
+            offset_mm == [0.0, 0.0],
+            "view `{}`: detector offsets cannot be written as DICOM tags",
+            entry.name
+        );
+        let g = TigreGeometry { dsd_mm, dso_mm, detector_px, pixel_mm, offset_mm, primary_deg, secondary_deg };
+        let mirror = args.mirror_first && i == 0;
+        let mut spec = simulated_run(img, &g, args.peak_attenuation / max, mirror);
+        if mirror {
+            spec.patient_orientation = Some(["L".into(), "F".into()]);
+        }
+        let path = args.out.join(format!("{}.dcm", entry.name));
+        write_xa_run(&path, &spec)?;
+        println!(
+            "{}: {} frames, primary {:.1}°, secondary {:.1}°",
+            path.display(),
+            spec.frames.len(),
+            spec.primary_deg.unwrap_or(0.0),
+            secondary_deg
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,8 @@
+//! Clinical inputs: DSA runs from DICOM (mask/fill subtraction, frame choice, MIP, positioner
+//! geometry), the prior from a CTA label volume, and their assembly into a case folder.
+
+pub mod dsa;
+pub mod import;
+pub mod prior;
+pub mod simulate;
+pub mod xa;

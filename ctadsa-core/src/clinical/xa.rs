@@ -1,0 +1,311 @@
+//! X-ray angiography runs from DICOM (multi-frame XA, uncompressed): frames, mask frames and the
+//! C-arm geometry from the standard positioner tags.
+
+use std::path::{Path, PathBuf};
+
+use dicom_core::{DataElement, PrimitiveValue, Tag, VR};
+use dicom_dictionary_std::{tags, uids};
+use dicom_object::{DefaultDicomObject, FileMetaTableBuilder, InMemDicomObject, open_file};
+
+use crate::error::{CoreError, Result};
+
+/// The C-arm geometry of a run, as the DICOM positioner tags give it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct XaGeometry {
+    /// Distance Source to Detector (0018,1110), mm.
+    pub dsd_mm: f64,
+    /// Distance Source to Patient (0018,1111) — to the isocentre, mm.
+    pub dso_mm: f64,
+    /// Positioner Primary Angle (0018,1510), degrees: LAO positive, RAO negative.
+    pub primary_deg: f64,
+    /// Positioner Secondary Angle (0018,1511), degrees: cranial positive, caudal negative.
+    pub secondary_deg: f64,
+    /// Imager Pixel Spacing (0018,1164) as `[column spacing, row spacing]` (mm at the detector).
+    pub pixel_mm: [f64; 2],
+}
+
+/// One DSA run: the stored frames and what the file says about them.
+#[derive(Debug, Clone)]
+pub struct XaRun {
+    pub path: PathBuf,
+    pub columns: u32,
+    pub rows: u32,
+    /// Frames, row-major, after the modality rescale (slope/intercept) when present.
+    pub frames: Vec<Vec<f32>>,
+    pub geometry: XaGeometry,
+    /// Mask frames named by the file (Mask Subtraction Sequence → Mask Frame Numbers), 0-based.
+    pub mask_frames: Vec<usize>,
+    /// Pixel Intensity Relationship (0028,1040): "LIN", "LOG" or "DISP", when given.
+    pub intensity_relationship: Option<String>,
+    /// Patient Orientation (0020,0020): the patient directions of the image rows and columns.
+    pub patient_orientation: Option<Vec<String>>,
+}
+
+fn tag_name(tag: Tag) -> String {
+    let name = dicom_dictionary_std::StandardDataDictionary
+        .by_tag(tag)
+        .map(|e| e.alias.to_string())
+        .unwrap_or_else(|| "unknown".into());
+    format!("{name} ({:04X},{:04X})", tag.0, tag.1)
+}
+
+use dicom_core::dictionary::DataDictionary;
+
+fn element_f64(obj: &DefaultDicomObject, path: &Path, tag: Tag) -> Result<Option<f64>> {
+    match obj.element_opt(tag) {
+        Ok(Some(e)) => e
+            .to_float64()
+            .map(Some)
+            .map_err(|err| CoreError::format(path, format!("tag {} is not a number: {err}", tag_name(tag)))),
+        _ => Ok(None),
+    }
+}
+
+fn element_str(obj: &DefaultDicomObject, tag: Tag) -> Option<String> {
+    obj.element_opt(tag).ok().flatten().and_then(|e| e.to_str().ok()).map(|s| s.trim().to_string())
+}
+
+fn element_int(obj: &DefaultDicomObject, path: &Path, tag: Tag) -> Result<Option<i64>> {
+    match obj.element_opt(tag) {
+        Ok(Some(e)) => e
+            .to_int::<i64>()
+            .map(Some)
+            .map_err(|err| CoreError::format(path, format!("tag {} is not an integer: {err}", tag_name(tag)))),
+        _ => Ok(None),
+    }
+}
+
+/// Reads a DSA run. Errors name the file and every missing tag.
+pub fn read_xa_run(path: &Path) -> Result<XaRun> {
+    if !path.exists() {
+        return Err(CoreError::io(path, std::io::Error::new(std::io::ErrorKind::NotFound, "no such file")));
+    }
+    let obj = open_file(path).map_err(|e| CoreError::format(path, format!("not a readable DICOM file: {e}")))?;
+    let modality = element_str(&obj, tags::MODALITY).unwrap_or_default();
+    if modality != "XA" && modality != "RF" {
+        return Err(CoreError::format(
+            path,
+            format!("modality is `{modality}`, expected XA (X-ray angiography) or RF (fluoroscopy)"),
+        ));
+    }
+    let ts = obj.meta().transfer_syntax().trim_end_matches('\0').to_string();
+    let native = [uids::EXPLICIT_VR_LITTLE_ENDIAN, uids::IMPLICIT_VR_LITTLE_ENDIAN];
+    if !native.contains(&ts.as_str()) {
+        return Err(CoreError::format(
+            path,
+            format!(
+                "transfer syntax {ts} is not uncompressed little endian; decompress first \
+                 (e.g. `gdcmconv --raw in.dcm out.dcm` or `dcmdjpeg in.dcm out.dcm`)"
+            ),
+        ));
+    }
+    let required = [
+        tags::ROWS,
+        tags::COLUMNS,
+        tags::BITS_ALLOCATED,
+        tags::PIXEL_DATA,
+        tags::DISTANCE_SOURCE_TO_DETECTOR,
+        tags::DISTANCE_SOURCE_TO_PATIENT,
+        tags::POSITIONER_PRIMARY_ANGLE,
+        tags::POSITIONER_SECONDARY_ANGLE,
+        tags::IMAGER_PIXEL_SPACING,
+    ];
+    let missing: Vec<String> =
+        required.iter().filter(|&&t| !matches!(obj.element_opt(t), Ok(Some(_)))).map(|&t| tag_name(t)).collect();
+    if !missing.is_empty() {
+        return Err(CoreError::format(path, format!("missing DICOM tag(s): {}", missing.join(", "))));
+    }
+    let need =
+        |v: Option<i64>, tag: Tag| v.ok_or_else(|| CoreError::format(path, format!("missing {}", tag_name(tag))));
+    let rows = need(element_int(&obj, path, tags::ROWS)?, tags::ROWS)?;
+    let columns = need(element_int(&obj, path, tags::COLUMNS)?, tags::COLUMNS)?;
+    let bits = need(element_int(&obj, path, tags::BITS_ALLOCATED)?, tags::BITS_ALLOCATED)?;
+    let samples = element_int(&obj, path, tags::SAMPLES_PER_PIXEL)?.unwrap_or(1);
+    let signed = element_int(&obj, path, tags::PIXEL_REPRESENTATION)?.unwrap_or(0) == 1;
+    let n_frames = match element_str(&obj, tags::NUMBER_OF_FRAMES) {
+        None => 1,
+        Some(s) => {
+            s.parse::<i64>().map_err(|_| CoreError::format(path, format!("Number of Frames (0028,0008) is `{s}`")))?
+        }
+    };
+    if rows < 1 || columns < 1 || n_frames < 1 {
+        return Err(CoreError::format(path, format!("degenerate image: {columns} × {rows} pixels, {n_frames} frames")));
+    }
+    if samples != 1 {
+        return Err(CoreError::format(path, format!("{samples} samples per pixel; DSA runs are greyscale (1)")));
+    }
+    if bits != 8 && bits != 16 {
+        return Err(CoreError::format(path, format!("Bits Allocated is {bits}; 8 or 16 are supported")));
+    }
+    let pixels = obj
+        .element(tags::PIXEL_DATA)
+        .map_err(|e| CoreError::format(path, format!("Pixel Data: {e}")))?
+        .to_bytes()
+        .map_err(|e| CoreError::format(path, format!("Pixel Data is not native (encapsulated?): {e}")))?;
+    let per_frame = (rows * columns) as usize;
+    let bytes_per = (bits / 8) as usize;
+    let needed = per_frame * n_frames as usize * bytes_per;
+    if pixels.len() < needed {
+        return Err(CoreError::format(
+            path,
+            format!(
+                "Pixel Data holds {} bytes, {columns} × {rows} × {n_frames} frames × {bytes_per} bytes need {needed}",
+                pixels.len()
+            ),
+        ));
+    }
+    let slope = element_f64(&obj, path, tags::RESCALE_SLOPE)?.unwrap_or(1.0);
+    let intercept = element_f64(&obj, path, tags::RESCALE_INTERCEPT)?.unwrap_or(0.0);
+    let value = |i: usize| -> f32 {
+        let raw = match (bytes_per, signed) {
+            (1, false) => pixels[i] as f64,
+            (1, true) => pixels[i] as i8 as f64,
+            (_, false) => u16::from_le_bytes([pixels[2 * i], pixels[2 * i + 1]]) as f64,
+            (_, true) => i16::from_le_bytes([pixels[2 * i], pixels[2 * i + 1]]) as f64,
+        };
+        (raw * slope + intercept) as f32
+    };
+    let frames: Vec<Vec<f32>> =
+        (0..n_frames as usize).map(|f| (0..per_frame).map(|p| value(f * per_frame + p)).collect()).collect();
+    let spacing = obj
+        .element(tags::IMAGER_PIXEL_SPACING)
+        .map_err(|e| CoreError::format(path, e.to_string()))?
+        .to_multi_float64()
+        .map_err(|e| CoreError::format(path, format!("Imager Pixel Spacing (0018,1164): {e}")))?;
+    if spacing.len() != 2 || spacing.iter().any(|s| !(*s > 0.0)) {
+        return Err(CoreError::format(
+            path,
+            format!("Imager Pixel Spacing (0018,1164) must be two positive numbers, got {spacing:?}"),
+        ));
+    }
+    let get = |t: Tag| -> Result<f64> {
+        element_f64(&obj, path, t)?.ok_or_else(|| CoreError::format(path, format!("missing {}", tag_name(t))))
+    };
+    let geometry = XaGeometry {
+        dsd_mm: get(tags::DISTANCE_SOURCE_TO_DETECTOR)?,
+        dso_mm: get(tags::DISTANCE_SOURCE_TO_PATIENT)?,
+        primary_deg: get(tags::POSITIONER_PRIMARY_ANGLE)?,
+        secondary_deg: get(tags::POSITIONER_SECONDARY_ANGLE)?,
+        // (0018,1164) is row spacing \ column spacing.
+        pixel_mm: [spacing[1], spacing[0]],
+    };
+    if !(geometry.dso_mm > 0.0 && geometry.dsd_mm > geometry.dso_mm) {
+        return Err(CoreError::format(
+            path,
+            format!(
+                "need 0 < Distance Source to Patient ({} mm) < Distance Source to Detector ({} mm)",
+                geometry.dso_mm, geometry.dsd_mm
+            ),
+        ));
+    }
+    let mut mask_frames = Vec::new();
+    if let Ok(Some(seq)) = obj.element_opt(tags::MASK_SUBTRACTION_SEQUENCE)
+        && let Some(items) = seq.items()
+    {
+        for item in items {
+            if let Some(e) = item.get(tags::MASK_FRAME_NUMBERS)
+                && let Ok(v) = e.to_multi_int::<i64>()
+            {
+                mask_frames.extend(v.into_iter().filter(|&f| f >= 1 && f <= n_frames).map(|f| (f - 1) as usize));
+            }
+        }
+    }
+    let patient_orientation = obj
+        .element_opt(tags::PATIENT_ORIENTATION)
+        .ok()
+        .flatten()
+        .and_then(|e| e.to_multi_str().ok().map(|v| v.iter().map(|s| s.trim().to_string()).collect()));
+    Ok(XaRun {
+        path: path.to_path_buf(),
+        columns: columns as u32,
+        rows: rows as u32,
+        frames,
+        geometry,
+        mask_frames,
+        intensity_relationship: element_str(&obj, tags::PIXEL_INTENSITY_RELATIONSHIP),
+        patient_orientation,
+    })
+}
+
+/// What [`write_xa_run`] writes; `None` leaves a tag out (to test errors).
+#[derive(Debug, Clone)]
+pub struct XaRunSpec {
+    pub modality: String,
+    pub columns: u16,
+    pub rows: u16,
+    /// Frames as 16-bit values, row-major.
+    pub frames: Vec<Vec<u16>>,
+    pub dsd_mm: Option<f64>,
+    pub dso_mm: Option<f64>,
+    pub primary_deg: Option<f64>,
+    pub secondary_deg: Option<f64>,
+    /// `[column spacing, row spacing]` mm.
+    pub pixel_mm: Option<[f64; 2]>,
+    /// 1-based mask frame numbers (Mask Subtraction Sequence).
+    pub mask_frame_numbers: Vec<u16>,
+    pub intensity_relationship: Option<String>,
+    /// Patient Orientation (0020,0020): row direction, column direction (e.g. `["L", "F"]`).
+    pub patient_orientation: Option<[String; 2]>,
+}
+
+/// Writes a multi-frame XA file (explicit VR little endian, 16-bit unsigned) — for tests and for
+/// exporting synthetic runs to tools that read DICOM.
+pub fn write_xa_run(path: &Path, spec: &XaRunSpec) -> Result<()> {
+    let ds = |v: f64| PrimitiveValue::from(format!("{v}"));
+    let mut obj = InMemDicomObject::from_element_iter([
+        DataElement::new(tags::SOP_CLASS_UID, VR::UI, uids::X_RAY_ANGIOGRAPHIC_IMAGE_STORAGE),
+        DataElement::new(tags::SOP_INSTANCE_UID, VR::UI, "2.25.311939489201882017281371526110112"),
+        DataElement::new(tags::MODALITY, VR::CS, spec.modality.as_str()),
+        DataElement::new(tags::SAMPLES_PER_PIXEL, VR::US, PrimitiveValue::from(1u16)),
+        DataElement::new(tags::PHOTOMETRIC_INTERPRETATION, VR::CS, "MONOCHROME2"),
+        DataElement::new(tags::NUMBER_OF_FRAMES, VR::IS, format!("{}", spec.frames.len()).as_str()),
+        DataElement::new(tags::ROWS, VR::US, PrimitiveValue::from(spec.rows)),
+        DataElement::new(tags::COLUMNS, VR::US, PrimitiveValue::from(spec.columns)),
+        DataElement::new(tags::BITS_ALLOCATED, VR::US, PrimitiveValue::from(16u16)),
+        DataElement::new(tags::BITS_STORED, VR::US, PrimitiveValue::from(16u16)),
+        DataElement::new(tags::HIGH_BIT, VR::US, PrimitiveValue::from(15u16)),
+        DataElement::new(tags::PIXEL_REPRESENTATION, VR::US, PrimitiveValue::from(0u16)),
+    ]);
+    let opt = |obj: &mut InMemDicomObject, tag: Tag, v: Option<f64>| {
+        if let Some(v) = v {
+            obj.put(DataElement::new(tag, VR::DS, ds(v)));
+        }
+    };
+    opt(&mut obj, tags::DISTANCE_SOURCE_TO_DETECTOR, spec.dsd_mm);
+    opt(&mut obj, tags::DISTANCE_SOURCE_TO_PATIENT, spec.dso_mm);
+    opt(&mut obj, tags::POSITIONER_PRIMARY_ANGLE, spec.primary_deg);
+    opt(&mut obj, tags::POSITIONER_SECONDARY_ANGLE, spec.secondary_deg);
+    if let Some([c, r]) = spec.pixel_mm {
+        obj.put(DataElement::new(tags::IMAGER_PIXEL_SPACING, VR::DS, PrimitiveValue::from(format!("{r}\\{c}"))));
+    }
+    if let Some([a, b]) = &spec.patient_orientation {
+        obj.put(DataElement::new(tags::PATIENT_ORIENTATION, VR::CS, PrimitiveValue::from(format!("{a}\\{b}"))));
+    }
+    if let Some(rel) = &spec.intensity_relationship {
+        obj.put(DataElement::new(tags::PIXEL_INTENSITY_RELATIONSHIP, VR::CS, rel.as_str()));
+    }
+    if !spec.mask_frame_numbers.is_empty() {
+        let item = InMemDicomObject::from_element_iter([
+            DataElement::new(tags::MASK_OPERATION, VR::CS, "AVG_SUB"),
+            DataElement::new(
+                tags::MASK_FRAME_NUMBERS,
+                VR::US,
+                PrimitiveValue::U16(spec.mask_frame_numbers.iter().copied().collect()),
+            ),
+        ]);
+        obj.put(DataElement::new(
+            tags::MASK_SUBTRACTION_SEQUENCE,
+            VR::SQ,
+            dicom_core::value::DataSetSequence::from(vec![item]),
+        ));
+    }
+    let bytes: Vec<u8> = spec.frames.iter().flatten().flat_map(|v| v.to_le_bytes()).collect();
+    obj.put(DataElement::new(tags::PIXEL_DATA, VR::OW, PrimitiveValue::from(bytes)));
+    let file = obj
+        .with_meta(FileMetaTableBuilder::new().transfer_syntax(uids::EXPLICIT_VR_LITTLE_ENDIAN))
+        .map_err(|e| CoreError::format(path, format!("cannot build DICOM meta: {e}")))?;
+    if let Some(dir) = path.parent() {
+        std::fs::create_dir_all(dir).map_err(|e| CoreError::io(dir, e))?;
+    }
+    file.write_to_file(path).map_err(|e| CoreError::format(path, format!("cannot write DICOM: {e}")))
+}
