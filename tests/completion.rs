@@ -172,3 +172,62 @@ fn bad_configuration_values_name_the_key() {
         assert!(err.contains(key), "error for {set} does not name {key}: {err}");
     }
 }
+
+/// The Chromium binary: `CTADSA_CHROMIUM`, else `chromium` or `chromium-browser` on the PATH.
+fn chromium() -> Option<PathBuf> {
+    if let Ok(p) = std::env::var("CTADSA_CHROMIUM") {
+        return Some(PathBuf::from(p));
+    }
+    let path = std::env::var_os("PATH")?;
+    std::env::split_paths(&path).flat_map(|d| ["chromium", "chromium-browser"].map(|n| d.join(n))).find(|p| p.is_file())
+}
+
+#[test]
+fn report_page_renders_its_images_in_headless_chromium() {
+    let (_, _) = run(Device::ndarray(), 20, "tiny-report");
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("tiny-report-{}", std::process::id()));
+    let page = ctadsa_core::report::write_report(&dir).expect("report");
+    let html = std::fs::read_to_string(&page).unwrap();
+    assert!(html.contains("data:image/png;base64,") && !html.contains("src=\"renders/"), "images are embedded");
+    for section in ["Inputs", "Renders against targets", "Completed vessel tree", "Metrics", "Configuration"] {
+        assert!(html.contains(section), "section `{section}` missing");
+    }
+    let Some(browser) = chromium() else {
+        if std::env::var("CTADSA_REQUIRE_CHROMIUM").is_ok_and(|v| v == "1") {
+            panic!("CTADSA_REQUIRE_CHROMIUM=1 but no chromium on the PATH (set CTADSA_CHROMIUM)");
+        }
+        eprintln!("SKIPPED: report browser check not run: no chromium on the PATH (apt-get install chromium)");
+        return;
+    };
+    let profile = dir.join("chromium-profile");
+    let out = std::process::Command::new(&browser)
+        .args([
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--disable-quic",
+            "--no-first-run",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            "--virtual-time-budget=10000",
+        ])
+        .arg(format!("--user-data-dir={}", profile.display()))
+        .arg("--dump-dom")
+        .arg(format!("file://{}", page.display()))
+        .output()
+        .expect("chromium starts");
+    let dom = String::from_utf8_lossy(&out.stdout);
+    let attr = |name: &str| -> Option<usize> {
+        let key = format!("{name}=\"");
+        let start = dom.find(&key)? + key.len();
+        dom[start..].split('"').next()?.parse().ok()
+    };
+    let (total, loaded) = (attr("data-images-total"), attr("data-images-loaded"));
+    eprintln!("chromium: {loaded:?} of {total:?} images decoded");
+    let total = total.unwrap_or_else(|| {
+        panic!("the page's load script did not run; stderr: {}", String::from_utf8_lossy(&out.stderr))
+    });
+    assert!(total >= 5, "renders (3), mesh and loss curve expected, found {total} images");
+    assert_eq!(loaded, Some(total), "every image decodes in the browser");
+}

@@ -71,7 +71,7 @@ fn pose_alone_recovers_a_2mm_1deg_perturbation() {
         nominal.iter().zip(&truth).map(|(v, c)| corrected_view(v, c).unwrap()).collect();
     let targets: Vec<Tensor<3>> = true_views
         .iter()
-        .map(|v| render(&scene, &ViewSet::new(vec![v.clone()]).unwrap(), &settings).unwrap())
+        .map(|v| render(&scene, &ViewSet::new(vec![*v]).unwrap(), &settings).unwrap())
         .collect();
     let before: Vec<f64> =
         nominal.iter().zip(&true_views).map(|(a, b)| reprojection_error_px(a, b, &centres).0).collect();
@@ -84,7 +84,7 @@ fn pose_alone_recovers_a_2mm_1deg_perturbation() {
         let mut loss = Tensor::<1>::zeros([1], &device);
         for (v, target) in targets.iter().enumerate() {
             let seen = poses.apply(&scene, v);
-            let image = render(&seen, &ViewSet::new(vec![nominal[v].clone()]).unwrap(), &settings).unwrap();
+            let image = render(&seen, &ViewSet::new(vec![nominal[v]]).unwrap(), &settings).unwrap();
             loss = loss + (image - target.clone()).powi_scalar(2).mean().reshape([1]);
         }
         let mut grads = loss.backward();

@@ -132,6 +132,7 @@ pub fn run_completion(
     pb.finish_with_message(format!("done in {:.1} s", start.elapsed().as_secs_f64()));
     trainer.save_checkpoint(&ck_dir)?;
     let summary = write_outputs(out, case, &trainer)?;
+    ctadsa_core::report::write_report(out)?;
     Ok(Some(summary))
 }
 

@@ -7,6 +7,7 @@ mod complete;
 mod eval;
 mod experiment;
 mod progress;
+mod report;
 mod synth;
 
 use anyhow::Result;
@@ -47,6 +48,9 @@ enum Command {
     /// Write a case's views as simulated DSA runs (multi-frame XA DICOM: mask + contrast bolus),
     /// to try the DICOM path without patient data.
     ExportDicom(clinical::ExportDicomArgs),
+    /// Write RUN_DIR/report.html: one self-contained page with the inputs, renders against
+    /// targets, the completed mesh, metrics, poses and the configuration.
+    Report(report::ReportArgs),
 }
 
 fn main() -> Result<()> {
@@ -62,5 +66,6 @@ fn main() -> Result<()> {
         Command::ImportDsa(args) => clinical::import_dsa(args),
         Command::Prior(args) => clinical::prior(args),
         Command::ExportDicom(args) => clinical::export_dicom(args),
+        Command::Report(args) => report::run(args),
     }
 }

@@ -14,8 +14,9 @@ use crate::error::{Result, write_file};
 use crate::mesh::TriMesh;
 use crate::mesh::io::{read_mesh, write_mesh, write_point_ply};
 use crate::mesh::marching::extract_isosurface;
-use crate::mesh::render_png::{Coloured, standard_views, write_mesh_png};
+use crate::mesh::render_png::{Coloured, OrbitView, standard_views, write_mesh_png};
 use crate::mesh::sample::sample_surface;
+use crate::mesh::split::split_by_distance;
 use crate::metrics::{RegionScores, percentile, region_scores};
 use crate::model::host_vec;
 use crate::plot::{PALETTE, Series, line_plot};
@@ -28,6 +29,8 @@ use ctadsa_render::ConeBeamView;
 /// Numbers of a finished run.
 #[derive(Debug, Clone, Serialize)]
 pub struct RunSummary {
+    /// The case folder the run used (as given).
+    pub case_dir: String,
     pub iterations: usize,
     pub gaussians: usize,
     pub n1: usize,
@@ -139,7 +142,7 @@ fn write_poses(dir: &Path, case: &Case, trainer: &Trainer, prior: Option<&TriMes
     };
     let indices: Vec<usize> =
         if trainer.cfg.run.views.is_empty() { (0..case.views.len()).collect() } else { trainer.cfg.run.views.clone() };
-    let nominal: Vec<(usize, ConeBeamView)> = indices.iter().map(|&i| (i, case.views.views()[i].clone())).collect();
+    let nominal: Vec<(usize, ConeBeamView)> = indices.iter().map(|&i| (i, case.views.views()[i])).collect();
     let mut entries = Vec::new();
     for ((i, view), c) in nominal.iter().zip(&learned) {
         let refined = corrected_view(view, c)?;
@@ -247,6 +250,18 @@ pub fn write_outputs(dir: &Path, case: &Case, trainer: &Trainer) -> Result<RunSu
         parts.push(Coloured { mesh: p, rgb: [210, 60, 50] });
     }
     write_mesh_png(&dir.join("mesh.png"), &parts, &standard_views(360))?;
+    // As the paper's Fig. 4: the completed surface, where the prior had vessels in red and the
+    // new vessels in blue, from four directions.
+    if let Some(p) = &prior {
+        let (old, new) = split_by_distance(&mesh, p, 1.0);
+        let mut views = standard_views(320);
+        views.push(OrbitView { azimuth_deg: 0.0, elevation_deg: 89.0, width: 320, height: 320 });
+        write_mesh_png(
+            &dir.join("mesh-completion.png"),
+            &[Coloured { mesh: &old, rgb: [210, 60, 50] }, Coloured { mesh: &new, rgb: [60, 120, 220] }],
+            &views,
+        )?;
+    }
     // Metrics.
     let n = cfg.output.metric_samples;
     let metrics = case_metrics(case, &mesh, n)?;
@@ -256,6 +271,7 @@ pub fn write_outputs(dir: &Path, case: &Case, trainer: &Trainer) -> Result<RunSu
     };
     let pose_errors = write_poses(dir, case, trainer, prior.as_ref())?;
     let summary = RunSummary {
+        case_dir: case.dir.display().to_string(),
         iterations: trainer.iteration,
         gaussians: densities.len(),
         n1: trainer.n1,

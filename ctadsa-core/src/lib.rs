@@ -21,6 +21,7 @@ pub mod model;
 pub mod plot;
 pub mod pose;
 pub mod projector;
+pub mod report;
 pub mod synth;
 pub mod train;
 pub mod tree;

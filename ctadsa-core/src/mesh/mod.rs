@@ -4,6 +4,7 @@ pub mod io;
 pub mod marching;
 pub mod render_png;
 pub mod sample;
+pub mod split;
 pub mod voxelize;
 
 use std::collections::HashMap;
