@@ -201,3 +201,23 @@ fn topcow_labels_become_a_prior_mesh() {
         assert!(p.x >= -0.5 && p.x <= 63.5 && p.y >= -0.5 && p.y <= 63.5, "{p:?} outside the detector");
     }
 }
+
+/// The registration example of docs/CLINICAL.md §4 is the reference AP view.
+#[test]
+fn documented_matrix_view_is_the_reference_ap_view() {
+    let json = r#"{
+        "kind": "matrix",
+        "world_to_camera": [[1, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 500], [0, 0, 0, 1]],
+        "focal_px": [1400, 1400],
+        "principal_px": [255.5, 255.5],
+        "detector_px": [512, 512]
+    }"#;
+    let g: ViewGeometry = serde_json::from_str(json).unwrap();
+    let m = g.to_view().unwrap();
+    let t = ConeBeamView::from_tigre(&TigreGeometry::reference(-90.0)).unwrap();
+    for p in [glam::DVec3::new(10.0, -20.0, 5.0), glam::DVec3::new(-40.0, 30.0, -25.0)] {
+        assert!((m.project(p).unwrap() - t.project(p).unwrap()).length() < 1e-9);
+    }
+    let docs = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/docs/CLINICAL.md")).unwrap();
+    assert!(docs.contains("[[1, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 500], [0, 0, 0, 1]]"), "docs example changed");
+}

@@ -69,10 +69,8 @@ fn pose_alone_recovers_a_2mm_1deg_perturbation() {
     let truth = [random_correction(2.0, 1.0, &mut rng), random_correction(2.0, 1.0, &mut rng)];
     let true_views: Vec<ConeBeamView> =
         nominal.iter().zip(&truth).map(|(v, c)| corrected_view(v, c).unwrap()).collect();
-    let targets: Vec<Tensor<3>> = true_views
-        .iter()
-        .map(|v| render(&scene, &ViewSet::new(vec![*v]).unwrap(), &settings).unwrap())
-        .collect();
+    let targets: Vec<Tensor<3>> =
+        true_views.iter().map(|v| render(&scene, &ViewSet::new(vec![*v]).unwrap(), &settings).unwrap()).collect();
     let before: Vec<f64> =
         nominal.iter().zip(&true_views).map(|(a, b)| reprojection_error_px(a, b, &centres).0).collect();
 
