@@ -39,13 +39,15 @@ fn metrics_rows(html: &mut String, label: &str, scores: &Value) {
         if s.is_null() {
             continue;
         }
+        // Non-finite distances (an empty region) are stored as null.
+        let d = |v: &Value| if v.is_null() { "∞".to_string() } else { num(v) };
         let _ = write!(
             html,
             "<tr><td>{label}</td><td>{region}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
-            num(&s["cd_mean_mm"]),
-            num(&s["cd_sum_mm"]),
-            num(&s["hd95_mm"]),
-            num(&s["hd_mm"])
+            d(&s["cd_mean_mm"]),
+            d(&s["cd_sum_mm"]),
+            d(&s["hd95_mm"]),
+            d(&s["hd_mm"])
         );
     }
 }
@@ -177,7 +179,7 @@ pub fn write_report(run_dir: &Path) -> Result<PathBuf> {
         if !summary["prior_metrics"].is_null() {
             metrics_rows(&mut html, "prior alone", &summary["prior_metrics"]);
         }
-        html.push_str("</table><p>Definitions: docs/METRICS.md (CD sum = the paper's convention).</p>");
+        html.push_str("</table><p>Definitions: docs/METRICS.md (CD sum = the paper's convention); ∞: the surface has no point in that region.</p>");
     }
 
     // Poses.
