@@ -138,11 +138,19 @@ pub fn run_completion(
 
 /// Prints the metrics of a run next to those of the prior alone.
 pub fn print_summary(summary: &RunSummary, out: &Path) {
-    println!("\nresults in {}", out.display());
+    println!("\nresults in {} (open {} in a browser)", out.display(), out.join("report.html").display());
     println!(
         "  Gaussians: {} (initial {} + {}), mesh: {} triangles at level {:.4}",
         summary.gaussians, summary.n1, summary.n2, summary.mesh_triangles, summary.mc_level
     );
+    if let Some(errors) = &summary.pose_errors {
+        for e in errors {
+            println!(
+                "  pose of view {}: reprojection {:.2} px → {:.2} px (rotation error {:.2}°, translation error {:.2} mm)",
+                e.view, e.reprojection_before_px, e.reprojection_after_px, e.rotation_error_deg, e.translation_error_mm
+            );
+        }
+    }
     let (Some(m), Some(p)) = (&summary.metrics, &summary.prior_metrics) else {
         println!("  (no ground truth in the case: no metrics)");
         return;
