@@ -12,8 +12,7 @@ use ctadsa_core::clinical::import::{DsaOptions, dsa_view, write_dsa_case};
 use ctadsa_core::clinical::prior::{LabelPriorOptions, Visibility, prior_from_labels};
 use ctadsa_core::clinical::simulate::{BOLUS, simulated_run};
 use ctadsa_core::clinical::xa::{XaRunSpec, read_xa_run, write_xa_run};
-use ctadsa_core::synth::{Anatomy, SynthConfig, synthesize};
-use ctadsa_core::tree::procedural::ProceduralTree;
+use ctadsa_core::synth::{SynthConfig, synthesize};
 use ctadsa_core::volume::nifti_io::{read_nifti, write_nifti};
 use ctadsa_render::{ConeBeamView, TigreGeometry};
 
@@ -38,20 +37,7 @@ fn tigre(g: &ViewGeometry) -> TigreGeometry {
 #[test]
 fn dicom_runs_become_the_case_they_were_made_from() {
     let dir = tmp("source-case");
-    let cfg = SynthConfig {
-        name: "dicom-source".into(),
-        anatomy: Anatomy::Procedural(ProceduralTree {
-            seed: 7,
-            terminals: 24,
-            domain_mm: [20.0, 20.0, 16.0],
-            terminal_radius_mm: 0.45,
-            murray_exponent: 3.0,
-        }),
-        detector_px: Some(192),
-        binning: 2,
-        voxel_mm: Some(0.4),
-        ..SynthConfig::default()
-    };
+    let cfg = SynthConfig::small_procedural("dicom-source");
     synthesize(&cfg, &dir, &mut |_| {}).expect("synthesis");
     let case = Case::load(&dir).unwrap();
     let max_l = case.images.iter().flat_map(|i| i.data.iter()).copied().fold(0.0f32, f32::max);

@@ -10,9 +10,8 @@ use burn::tensor::Device;
 use ctadsa_core::case::Case;
 use ctadsa_core::config::Config;
 use ctadsa_core::export::{RunSummary, write_outputs};
-use ctadsa_core::synth::{Anatomy, SynthConfig, synthesize};
+use ctadsa_core::synth::{SynthConfig, synthesize};
 use ctadsa_core::train::Trainer;
-use ctadsa_core::tree::procedural::ProceduralTree;
 
 /// The built-in quick configuration, shrunk: fewer Gaussians and iterations, no densification
 /// (so that runs on different backends keep the same Gaussians).
@@ -39,20 +38,7 @@ fn tiny_case() -> &'static Case {
     static CASE: OnceLock<Case> = OnceLock::new();
     CASE.get_or_init(|| {
         let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("tiny-case-{}", std::process::id()));
-        let cfg = SynthConfig {
-            name: "tiny".into(),
-            anatomy: Anatomy::Procedural(ProceduralTree {
-                seed: 7,
-                terminals: 24,
-                domain_mm: [20.0, 20.0, 16.0],
-                terminal_radius_mm: 0.45,
-                murray_exponent: 3.0,
-            }),
-            detector_px: Some(192),
-            binning: 2,
-            voxel_mm: Some(0.4),
-            ..SynthConfig::default()
-        };
+        let cfg = SynthConfig::small_procedural("tiny");
         synthesize(&cfg, &dir, &mut |_| {}).expect("synthesis");
         Case::load(&dir).expect("case loads")
     })

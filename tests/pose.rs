@@ -14,9 +14,8 @@ use ctadsa_core::case::Case;
 use ctadsa_core::config::Config;
 use ctadsa_core::export::write_outputs;
 use ctadsa_core::pose::{ViewPoses, corrected_view, random_correction, reprojection_error_px};
-use ctadsa_core::synth::{Anatomy, PoseErrorSpec, SynthConfig, synthesize};
+use ctadsa_core::synth::{PoseErrorSpec, SynthConfig, synthesize};
 use ctadsa_core::train::Trainer;
-use ctadsa_core::tree::procedural::ProceduralTree;
 use ctadsa_render::{ConeBeamView, Gaussians, RenderSettings, TigreGeometry, ViewSet, render};
 use glam::{DQuat, DVec3};
 use rand::SeedableRng;
@@ -109,19 +108,8 @@ fn pose_alone_recovers_a_2mm_1deg_perturbation() {
 fn joint_refinement_on_a_perturbed_synthetic_case() {
     let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("pose-case-{}", std::process::id()));
     let cfg = SynthConfig {
-        name: "pose-perturbed".into(),
-        anatomy: Anatomy::Procedural(ProceduralTree {
-            seed: 7,
-            terminals: 24,
-            domain_mm: [20.0, 20.0, 16.0],
-            terminal_radius_mm: 0.45,
-            murray_exponent: 3.0,
-        }),
-        detector_px: Some(192),
-        binning: 2,
-        voxel_mm: Some(0.4),
         pose_error: Some(PoseErrorSpec { translation_mm: 2.0, rotation_deg: 1.0, seed: 3 }),
-        ..SynthConfig::default()
+        ..SynthConfig::small_procedural("pose-perturbed")
     };
     synthesize(&cfg, &dir, &mut |_| {}).expect("synthesis");
     let case = Case::load(&dir).expect("case loads");

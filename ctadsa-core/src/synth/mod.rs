@@ -100,6 +100,28 @@ pub struct PoseErrorSpec {
     pub seed: u64,
 }
 
+impl SynthConfig {
+    /// A small case for tests and quick checks: a procedural tree of 24 terminals in a
+    /// 40 × 40 × 32 mm box, three views of 96 × 96 pixels of 1 mm (192 px binned by 2), 0.4 mm
+    /// voxels, prior = vessels ≥ 1.5 mm.
+    pub fn small_procedural(name: &str) -> Self {
+        Self {
+            name: name.into(),
+            anatomy: Anatomy::Procedural(ProceduralTree {
+                seed: 7,
+                terminals: 24,
+                domain_mm: [20.0, 20.0, 16.0],
+                terminal_radius_mm: 0.45,
+                murray_exponent: 3.0,
+            }),
+            detector_px: Some(192),
+            binning: 2,
+            voxel_mm: Some(0.4),
+            ..Self::default()
+        }
+    }
+}
+
 impl Default for SynthConfig {
     fn default() -> Self {
         Self {
