@@ -9,7 +9,8 @@
 use rayon::prelude::*;
 
 use super::host::HostGaussians;
-use super::math::{Frame, Projected, SQRT_2PI, Sym3, clamp_scales, exp_neg, project, quat_to_mat};
+use super::math::{Frame, Projected, SQRT_2PI, Sym3, clamp_scales, exp_neg, quat_to_mat};
+use super::project::project_range;
 use crate::view_params::ViewParams;
 
 /// Gradients of a scalar loss with respect to the render inputs (row-major, like the inputs),
@@ -60,45 +61,47 @@ fn row_sums(
     while j < n {
         let take = (n - j).min(LANES);
         let first = (c0 as usize + j) as f32;
-        let mut g_lane = [0.0f32; LANES];
         let start = c0 as usize + j;
-        g_lane[..take].copy_from_slice(&grad_row[start..start + take]);
-        let mut lane = [[0.0f32; LANES]; 10];
+        // A whole-chunk load where the row allows it (one vector load, no `memcpy` call);
+        // lanes past the span get weight 0.
+        let mut g_lane = [0.0f32; LANES];
+        match grad_row.get(start..start + LANES) {
+            Some(whole) => g_lane.copy_from_slice(whole),
+            None => g_lane[..take].copy_from_slice(&grad_row[start..start + take]),
+        }
+        let live: [bool; LANES] = std::array::from_fn(|l| l < take);
         for l in 0..LANES {
             let g = g_lane[l];
             let dx = (first + lane_col[l] - p.u0) * vp.inv_fx;
-            let alpha = re.a0 + dx * (re.a1 + dx * re.a2);
-            let quad = re.n0 + dx * (re.n1 + dx * re.n2);
+            let alpha = re.alpha(dx);
+            let quad = re.quad(dx);
             let xn = p.x0 + dx;
-            let r2 = re.r0 + xn * xn;
+            let r2 = re.ray_len2(xn);
             let inv_a = 1.0 / alpha;
             let unit = SQRT_2PI * (r2 * inv_a).sqrt() * exp_neg(-0.5 * quad * inv_a);
-            let g = if p.sees(quad, alpha) { g } else { 0.0 };
+            let g = if live[l] & p.sees(quad, alpha) { g } else { 0.0 };
             let gu = g * unit;
             let gi = gu * density;
             // β = (Qũ)·Δ / α, Qũ = g_w + Q Δ.
-            let qu_x = p.g_x + p.q_xx * dx + p.q_xy * dy;
-            let qu_y = p.g_y + p.q_xy * dx + p.q_yy * dy;
-            let beta = (qu_x * dx + qu_y * dy) * inv_a;
-            let ex = mu_z * (dx - beta * xn);
-            let ey = mu_z * (dy - beta * yn);
+            let qu_x = p.q_xy.mul_add(dy, p.q_xx.mul_add(dx, p.g_x));
+            let qu_y = p.q_yy.mul_add(dy, p.q_xy.mul_add(dx, p.g_y));
+            let beta = qu_y.mul_add(dy, qu_x * dx) * inv_a;
+            let ex = mu_z * (-beta).mul_add(xn, dx);
+            let ey = mu_z * (-beta).mul_add(yn, dy);
             let ez = -mu_z * beta;
             let gia = gi * inv_a;
-            lane[0][l] = gu;
-            lane[1][l] = gi * ex;
-            lane[2][l] = gi * ey;
-            lane[3][l] = gi * ez;
-            lane[4][l] = gia * xn * xn + gi * ex * ex;
-            lane[5][l] = gia * xn * yn + gi * ex * ey;
-            lane[6][l] = gia * xn + gi * ex * ez;
-            lane[7][l] = gia * yn * yn + gi * ey * ey;
-            lane[8][l] = gia * yn + gi * ey * ez;
-            lane[9][l] = gia + gi * ez * ez;
-        }
-        for (a, l) in acc.iter_mut().zip(lane.iter()) {
-            for k in 0..LANES {
-                a[k] += l[k];
-            }
+            let (gix, giy, giz) = (gi * ex, gi * ey, gi * ez);
+            let (gxn, gyn) = (gia * xn, gia * yn);
+            acc[0][l] += gu;
+            acc[1][l] += gix;
+            acc[2][l] += giy;
+            acc[3][l] += giz;
+            acc[4][l] += gxn.mul_add(xn, gix * ex);
+            acc[5][l] += gxn.mul_add(yn, gix * ey);
+            acc[6][l] += gix.mul_add(ez, gxn);
+            acc[7][l] += gyn.mul_add(yn, giy * ey);
+            acc[8][l] += giy.mul_add(ez, gyn);
+            acc[9][l] += giz.mul_add(ez, gia);
         }
         j += LANES;
     }
@@ -153,19 +156,17 @@ pub fn accumulate_view(
     for (i, dm) in ws.mean.iter_mut().enumerate() {
         *dm += r[i] * d_mu[0] + r[3 + i] * d_mu[1] + r[6 + i] * d_mu[2];
     }
-    // ∂L/∂Q_c = −½ M;  ∂L/∂Q_w = Rᵀ (∂L/∂Q_c) R.
-    let full = |a: &Sym3, i: usize, j: usize| {
-        const IDX: [[usize; 3]; 3] = [[0, 1, 2], [1, 3, 4], [2, 4, 5]];
-        a[IDX[i][j]]
-    };
-    let pairs = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)];
-    for (slot, &(i, j)) in ws.precision.iter_mut().zip(pairs.iter()) {
-        let mut v = 0.0;
-        for a in 0..3 {
-            for b in 0..3 {
-                v += r[3 * a + i] * full(&m, a, b) * r[3 * b + j];
-            }
+    // ∂L/∂Q_c = −½ M;  ∂L/∂Q_w = Rᵀ (∂L/∂Q_c) R, as T = M R then Rᵀ T.
+    let mf = [m[0], m[1], m[2], m[1], m[3], m[4], m[2], m[4], m[5]];
+    let mut t = [0.0f32; 9];
+    for a in 0..3 {
+        for j in 0..3 {
+            t[3 * a + j] = mf[3 * a] * r[j] + mf[3 * a + 1] * r[3 + j] + mf[3 * a + 2] * r[6 + j];
         }
+    }
+    const PAIRS: [(usize, usize); 6] = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)];
+    for (slot, &(i, j)) in ws.precision.iter_mut().zip(PAIRS.iter()) {
+        let v = r[i] * t[j] + r[3 + i] * t[3 + j] + r[6 + i] * t[6 + j];
         *slot += -0.5 * v;
     }
     ws.density += unit;
@@ -229,20 +230,24 @@ fn gradients_chunk(
     grad: &[f32],
     out: &mut [GaussianGrad],
 ) {
-    for (j, o) in out.iter_mut().enumerate() {
-        let (mean, scale, quat, density) = g.get(first + j);
-        let mut ws = WorldSums::default();
-        let mut offset = 0;
-        for vp in views {
-            let size = (vp.width * vp.height) as usize;
-            let view_grad = &grad[offset..offset + size];
-            offset += size;
-            let Some((p, frame)) = project(mean, scale, quat, density, vp, k_sigma) else {
-                continue;
-            };
-            let s = footprint_sums(&p, vp, view_grad);
-            accumulate_view(&mut ws, s.unit, s.e, s.m, &frame, &p, vp);
+    let n = out.len();
+    let mut sums = vec![WorldSums::default(); n];
+    let mut projected = vec![None; n];
+    let mut frames = vec![Frame::default(); n];
+    let mut offset = 0;
+    for vp in views {
+        let size = (vp.width * vp.height) as usize;
+        let view_grad = &grad[offset..offset + size];
+        offset += size;
+        project_range(g, first, vp, k_sigma, &mut projected, Some(&mut frames));
+        for ((ws, p), frame) in sums.iter_mut().zip(&projected).zip(&frames) {
+            let Some(p) = p else { continue };
+            let s = footprint_sums(p, vp, view_grad);
+            accumulate_view(ws, s.unit, s.e, s.m, frame, p, vp);
         }
+    }
+    for (j, (o, ws)) in out.iter_mut().zip(&sums).enumerate() {
+        let (_, scale, quat, _) = g.get(first + j);
         let (d_scale, d_quat) = chain_precision(scale, quat, &ws.precision);
         *o = (ws.mean, d_scale, d_quat, ws.density, [ws.stat, ws.visible]);
     }
@@ -252,21 +257,31 @@ fn gradients_chunk(
 pub fn render_backward(g: &HostGaussians, views: &[ViewParams], k_sigma: f32, grad: &[f32]) -> HostGrads {
     let n = g.len();
     const CHUNK: usize = 256;
-    let mut per: Vec<GaussianGrad> = vec![Default::default(); n];
-    per.par_chunks_mut(CHUNK).enumerate().for_each(|(c, out)| gradients_chunk(g, c * CHUNK, views, k_sigma, grad, out));
     let mut out = HostGrads {
-        means: Vec::with_capacity(3 * n),
-        scales: Vec::with_capacity(3 * n),
-        rotations: Vec::with_capacity(4 * n),
-        densities: Vec::with_capacity(n),
-        screen_stats: Vec::with_capacity(2 * n),
+        means: vec![0.0; 3 * n],
+        scales: vec![0.0; 3 * n],
+        rotations: vec![0.0; 4 * n],
+        densities: vec![0.0; n],
+        screen_stats: vec![0.0; 2 * n],
     };
-    for (m, s, q, d, st) in per {
-        out.means.extend(m);
-        out.scales.extend(s);
-        out.rotations.extend(q);
-        out.densities.push(d);
-        out.screen_stats.extend(st);
-    }
+    out.means
+        .par_chunks_mut(3 * CHUNK)
+        .zip(out.scales.par_chunks_mut(3 * CHUNK))
+        .zip(out.rotations.par_chunks_mut(4 * CHUNK))
+        .zip(out.densities.par_chunks_mut(CHUNK))
+        .zip(out.screen_stats.par_chunks_mut(2 * CHUNK))
+        .enumerate()
+        .for_each(|(c, ((((means, scales), rotations), densities), stats))| {
+            let mut per = [GaussianGrad::default(); CHUNK];
+            let per = &mut per[..densities.len()];
+            gradients_chunk(g, c * CHUNK, views, k_sigma, grad, per);
+            for (j, (m, s, q, d, st)) in per.iter().enumerate() {
+                means[3 * j..3 * j + 3].copy_from_slice(m);
+                scales[3 * j..3 * j + 3].copy_from_slice(s);
+                rotations[4 * j..4 * j + 4].copy_from_slice(q);
+                densities[j] = *d;
+                stats[2 * j..2 * j + 2].copy_from_slice(st);
+            }
+        });
     out
 }

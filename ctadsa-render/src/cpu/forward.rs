@@ -8,7 +8,8 @@ use multiversion::multiversion;
 use rayon::prelude::*;
 
 use super::host::HostGaussians;
-use super::math::{Projected, exp_neg, project};
+use super::math::{Projected, RowEval, exp_neg};
+use super::project::project_range;
 use crate::view_params::ViewParams;
 
 /// Tile edge in pixels.
@@ -20,10 +21,7 @@ const CHUNK: usize = 2048;
 /// Projects Gaussians `first..first + out.len()` into `out`.
 #[multiversion(targets("x86_64+avx2+fma+sse4.1", "x86_64+sse4.1"))]
 fn project_chunk(g: &HostGaussians, first: usize, vp: &ViewParams, k_sigma: f32, out: &mut [Option<Projected>]) {
-    for (j, o) in out.iter_mut().enumerate() {
-        let (m, s, q, d) = g.get(first + j);
-        *o = project(m, s, q, d, vp, k_sigma).map(|(p, _)| p);
-    }
+    project_range(g, first, vp, k_sigma, out, None);
 }
 
 /// Projects all Gaussians into one view (`None` = culled).
@@ -79,32 +77,51 @@ pub fn bin_tiles(projected: &[Option<Projected>], vp: &ViewParams) -> TileBins {
 /// Pixels per inner-loop chunk (the lane arrays vectorise).
 const LANES: usize = 8;
 
-/// Adds Gaussian `p` to the pixels of columns `[c0, c1]` of image row `row` that see it,
-/// stored from `out[0]` (column `c0`). Works in whole chunks of [`LANES`] pixels: lanes past
-/// `c1` or outside the footprint add exactly 0, so `out` must extend `LANES − 1` values past
-/// `c1` (the tile buffer is padded).
+/// Adds Gaussian `p` to the pixels of columns `[c0, c1]` of `R` consecutive image rows from
+/// `row`, stored from `out[0]` (row `row`, column `c0`) with `stride` values between rows. The
+/// rows are evaluated together (independent dependency chains, so the long-latency division,
+/// square root and `exp` of one row overlap those of the next). Works in whole chunks of
+/// [`LANES`] pixels: lanes past `c1` or outside the footprint add exactly 0, so each row of
+/// `out` must extend `LANES − 1` values past `c1` (the tile buffer is padded).
 #[inline(always)]
-fn splat_row(p: &Projected, vp: &ViewParams, row: i32, c0: i32, c1: i32, out: &mut [f32]) {
-    let re = p.row_eval(row, vp);
+fn splat_rows<const R: usize>(
+    p: &Projected,
+    vp: &ViewParams,
+    row: i32,
+    c0: i32,
+    c1: i32,
+    stride: usize,
+    out: &mut [f32],
+) {
+    let re: [RowEval; R] = std::array::from_fn(|r| p.row_eval(row + r as i32, vp));
     let n = (c1 - c0 + 1) as usize;
     // Lane arithmetic in f32 only (no integer overflow checks in the vector loop).
     let lane_col: [f32; LANES] = std::array::from_fn(|l| l as f32);
+    let last = c1 as f32;
     let mut j = 0;
     while j < n {
-        let chunk: &mut [f32; LANES] = (&mut out[j..j + LANES]).try_into().expect("padded buffer");
         let first = (c0 as usize + j) as f32;
-        let last = c1 as f32;
-        for (l, o) in chunk.iter_mut().enumerate() {
-            let col = first + lane_col[l];
-            let dx = (col - p.u0) * vp.inv_fx;
-            let alpha = re.a0 + dx * (re.a1 + dx * re.a2);
-            let quad = re.n0 + dx * (re.n1 + dx * re.n2);
-            let xn = p.x0 + dx;
-            let r2 = re.r0 + xn * xn;
-            let inv_a = 1.0 / alpha;
-            let v = p.amp * (r2 * inv_a).sqrt() * exp_neg(-0.5 * quad * inv_a);
-            let keep = (col <= last) & p.sees(quad, alpha);
-            *o += if keep { v } else { 0.0 };
+        let mut v = [[0.0f32; LANES]; R];
+        for (re, v) in re.iter().zip(v.iter_mut()) {
+            for (l, o) in v.iter_mut().enumerate() {
+                let col = first + lane_col[l];
+                let dx = (col - p.u0) * vp.inv_fx;
+                let alpha = re.alpha(dx);
+                let quad = re.quad(dx);
+                let xn = p.x0 + dx;
+                let r2 = re.ray_len2(xn);
+                let inv_a = 1.0 / alpha;
+                let value = p.amp * (r2 * inv_a).sqrt() * exp_neg(-0.5 * quad * inv_a);
+                let keep = (col <= last) & p.sees(quad, alpha);
+                *o = if keep { value } else { 0.0 };
+            }
+        }
+        for (r, v) in v.iter().enumerate() {
+            let start = r * stride + j;
+            let chunk: &mut [f32; LANES] = (&mut out[start..start + LANES]).try_into().expect("padded buffer");
+            for (o, v) in chunk.iter_mut().zip(v) {
+                *o += v;
+            }
         }
         j += LANES;
     }
@@ -125,9 +142,16 @@ fn render_tile(projected: &[Option<Projected>], ids: &[u32], vp: &ViewParams, tx
         if lo > hi {
             continue;
         }
-        for row in r0..=r1 {
+        let stride = TILE as usize;
+        let mut row = r0;
+        while row < r1 {
             let start = ((row - y_lo) * TILE + (lo - x_lo)) as usize;
-            splat_row(p, vp, row, lo, hi, &mut buf[start..]);
+            splat_rows::<2>(p, vp, row, lo, hi, stride, &mut buf[start..]);
+            row += 2;
+        }
+        if row == r1 {
+            let start = ((row - y_lo) * TILE + (lo - x_lo)) as usize;
+            splat_rows::<1>(p, vp, row, lo, hi, stride, &mut buf[start..]);
         }
     }
 }
@@ -188,8 +212,8 @@ pub fn count_pairs(g: &HostGaussians, views: &[ViewParams], k_sigma: f32) -> u64
                         let re = p.row_eval(row, vp);
                         for col in p.col_min..=p.col_max {
                             let dx = (col as f32 - p.u0) * vp.inv_fx;
-                            let alpha = re.a0 + dx * (re.a1 + dx * re.a2);
-                            let quad = re.n0 + dx * (re.n1 + dx * re.n2);
+                            let alpha = re.alpha(dx);
+                            let quad = re.quad(dx);
                             count += p.sees(quad, alpha) as u64;
                         }
                     }

@@ -83,7 +83,8 @@ pub fn clamp_scales(s: [f32; 3]) -> Option<([f32; 3], [bool; 3])> {
     Some((c, inside))
 }
 
-/// Everything the pixel loops need to evaluate one Gaussian in one view.
+/// Everything the pixel loops need to evaluate one Gaussian in one view (computed by
+/// [`super::project::project_range`]).
 #[derive(Debug, Clone, Copy, Default)]
 pub struct Projected {
     /// Projected centre in pixels.
@@ -108,11 +109,8 @@ pub struct Projected {
     pub c_yy: f32,
     /// `ρ √(2π)`.
     pub amp: f32,
-    /// `k²`, and whether the footprint is bounded (false: the k-σ ellipsoid reaches the source
-    /// plane, every pixel is evaluated, no cut-off).
-    pub k2: f32,
-    pub bounded: bool,
-    /// `k²` for a bounded footprint, `+∞` otherwise (branch-free [`Projected::sees`]).
+    /// `k²` for a bounded footprint, `+∞` where the k-σ ellipsoid reaches the source plane
+    /// (every pixel is evaluated, no cut-off; branch-free [`Projected::sees`]).
     pub cut: f32,
     /// Inclusive pixel bounding box of the footprint (the exact box of the k-σ ellipsoid's
     /// image), clipped to the image; empty if `col_min > col_max` or `row_min > row_max`. The
@@ -171,8 +169,28 @@ pub struct RowEval {
     pub r0: f32,
 }
 
+impl RowEval {
+    /// `α = ũᵀQũ` at normalised column offset `dx`.
+    #[inline(always)]
+    pub fn alpha(&self, dx: f32) -> f32 {
+        dx.mul_add(dx.mul_add(self.a2, self.a1), self.a0)
+    }
+
+    /// `N = ΔᵀCΔ` at normalised column offset `dx`.
+    #[inline(always)]
+    pub fn quad(&self, dx: f32) -> f32 {
+        dx.mul_add(dx.mul_add(self.n2, self.n1), self.n0)
+    }
+
+    /// `|ũ|²` for the normalised column `xn = x0 + dx`.
+    #[inline(always)]
+    pub fn ray_len2(&self, xn: f32) -> f32 {
+        xn.mul_add(xn, self.r0)
+    }
+}
+
 /// Camera-frame quantities a backward pass needs beyond [`Projected`].
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, Default)]
 pub struct Frame {
     /// `M = R_view · R_gaussian` (row-major): Gaussian axes in camera coordinates.
     pub m: [f32; 9],
@@ -180,119 +198,6 @@ pub struct Frame {
     pub q: Sym3,
     /// Camera-frame centre (mm).
     pub mu: [f32; 3],
-}
-
-/// Projects Gaussian `(mean, scale, quat, density)` (world mm) into view `vp` with a k-σ
-/// footprint. Returns `None` when the Gaussian is invalid (non-finite, zero quaternion),
-/// behind the source, or does not touch the image.
-#[inline(always)]
-pub fn project(
-    mean: [f32; 3],
-    scale: [f32; 3],
-    quat: [f32; 4],
-    density: f32,
-    vp: &ViewParams,
-    k_sigma: f32,
-) -> Option<(Projected, Frame)> {
-    if !(density.is_finite() && mean.iter().all(|v| v.is_finite())) {
-        return None;
-    }
-    let (s, _) = clamp_scales(scale)?;
-    let (rot, _, _) = quat_to_mat(quat)?;
-    let r = &vp.rotation;
-    let mu = [
-        r[0] * mean[0] + r[1] * mean[1] + r[2] * mean[2] + vp.translation[0],
-        r[3] * mean[0] + r[4] * mean[1] + r[5] * mean[2] + vp.translation[1],
-        r[6] * mean[0] + r[7] * mean[1] + r[8] * mean[2] + vp.translation[2],
-    ];
-    if !(mu[2] > 0.0) {
-        return None;
-    }
-    let m = matmul3(r, &rot);
-    let q = sandwich_diag(&m, s.map(|v| 1.0 / (v * v)));
-    let sig = sandwich_diag(&m, s.map(|v| v * v));
-    let proj = setup(mu, &q, &sig, density, vp, k_sigma)?;
-    Some((proj, Frame { m, q, mu }))
-}
-
-/// The view-independent part of [`project`] once the camera-frame centre, precision and
-/// covariance are known.
-#[inline(always)]
-fn setup(mu: [f32; 3], q: &Sym3, sig: &Sym3, density: f32, vp: &ViewParams, k_sigma: f32) -> Option<Projected> {
-    let [qxx, qxy, qxz, qyy, qyz, qzz] = *q;
-    let [sxx, sxy, sxz, syy, syz, szz] = *sig;
-    let x0 = mu[0] / mu[2];
-    let y0 = mu[1] / mu[2];
-    let g_x = qxx * x0 + qxy * y0 + qxz;
-    let g_y = qxy * x0 + qyy * y0 + qyz;
-    let g_z = qxz * x0 + qyz * y0 + qzz;
-    let alpha_w = x0 * g_x + y0 * g_y + g_z;
-    // Σ₂ = P Σ Pᵀ, P = [[1, 0, −x0], [0, 1, −y0]].
-    let s00 = sxx - 2.0 * x0 * sxz + x0 * x0 * szz;
-    let s01 = sxy - x0 * syz - y0 * sxz + x0 * y0 * szz;
-    let s11 = syy - 2.0 * y0 * syz + y0 * y0 * szz;
-    let det = s00 * s11 - s01 * s01;
-    if !(det > 0.0 && det.is_finite() && alpha_w > 0.0) {
-        return None;
-    }
-    let scale = mu[2] * mu[2] * alpha_w / det;
-    let (c_xx, c_xy, c_yy) = (scale * s11, -scale * s01, scale * s00);
-    let k2 = k_sigma * k_sigma;
-    let u0 = vp.fx * x0 + vp.cx;
-    let v0 = vp.fy * y0 + vp.cy;
-    let mut p = Projected {
-        u0,
-        v0,
-        x0,
-        y0,
-        mu_z: mu[2],
-        q_xx: qxx,
-        q_xy: qxy,
-        q_yy: qyy,
-        g_x,
-        g_y,
-        alpha_w,
-        c_xx,
-        c_xy,
-        c_yy,
-        amp: density * SQRT_2PI,
-        k2,
-        bounded: true,
-        cut: k2,
-        col_min: 0,
-        col_max: vp.width as i32 - 1,
-        row_min: 0,
-        row_max: vp.height as i32 - 1,
-    };
-    // Footprint conic F = Δᵀ A Δ + 2 bᵀΔ + c with A = C − k² Q₂, b = −k² g, c = −k² α_w.
-    let (a_xx, a_xy, a_yy) = (c_xx - k2 * qxx, c_xy - k2 * qxy, c_yy - k2 * qyy);
-    let det_a = a_xx * a_yy - a_xy * a_xy;
-    if !(a_xx > 0.0 && det_a > 0.0) {
-        // The k-σ ellipsoid reaches the source plane: unbounded footprint, every pixel.
-        p.bounded = false;
-        p.cut = f32::INFINITY;
-        return Some(p);
-    }
-    let (b_x, b_y) = (-k2 * g_x, -k2 * g_y);
-    let (i_xx, i_xy, i_yy) = (a_yy / det_a, -a_xy / det_a, a_xx / det_a);
-    let (pc_x, pc_y) = (-(i_xx * b_x + i_xy * b_y), -(i_xy * b_x + i_yy * b_y));
-    let f_min = -k2 * alpha_w + (b_x * pc_x + b_y * pc_y);
-    if !(f_min < 0.0) {
-        return None;
-    }
-    let (hx, hy) = ((-f_min * i_xx).sqrt(), (-f_min * i_yy).sqrt());
-    let col_lo = (u0 + (pc_x - hx) * vp.fx).ceil();
-    let col_hi = (u0 + (pc_x + hx) * vp.fx).floor();
-    let row_lo = (v0 + (pc_y - hy) * vp.fy).ceil();
-    let row_hi = (v0 + (pc_y + hy) * vp.fy).floor();
-    if !(col_lo.is_finite() && col_hi.is_finite() && row_lo.is_finite() && row_hi.is_finite()) {
-        return None;
-    }
-    p.col_min = col_lo.max(0.0) as i32;
-    p.col_max = col_hi.min(vp.width as f32 - 1.0) as i32;
-    p.row_min = row_lo.max(0.0) as i32;
-    p.row_max = row_hi.min(vp.height as f32 - 1.0) as i32;
-    p.visible().then_some(p)
 }
 
 /// `exp(x)` for `x ≤ 0`, written so that loops over it vectorise (no libm call): range reduction
@@ -306,16 +211,19 @@ pub fn exp_neg(x: f32) -> f32 {
     // Round to nearest with the 1.5·2²³ trick (vectorises; `round()` is a libm call on x86-64).
     const ROUND: f32 = 12_582_912.0;
     let x = x.max(-87.0);
-    let n = (x * LOG2E + ROUND) - ROUND;
-    let r = x - n * LN2_HI - n * LN2_LO;
-    let p = 1.0 / 720.0;
-    let p = p * r + 1.0 / 120.0;
-    let p = p * r + 1.0 / 24.0;
-    let p = p * r + 1.0 / 6.0;
-    let p = p * r + 0.5;
-    let p = p * r + 1.0;
-    let p = p * r + 1.0;
-    let bits = ((n as i32).wrapping_add(127) as u32) << 23;
+    let n = x.mul_add(LOG2E, ROUND) - ROUND;
+    let r = (-n).mul_add(LN2_LO, (-n).mul_add(LN2_HI, x));
+    // Horner with fused multiply-adds (one instruction per step in the FMA kernels).
+    let p = (1.0f32 / 720.0).mul_add(r, 1.0 / 120.0);
+    let p = p.mul_add(r, 1.0 / 24.0);
+    let p = p.mul_add(r, 1.0 / 6.0);
+    let p = p.mul_add(r, 0.5);
+    let p = p.mul_add(r, 1.0);
+    let p = p.mul_add(r, 1.0);
+    // 2ⁿ from the float's bits without a float → int conversion (which would not vectorise):
+    // n + 127 + 1.5·2²³ holds n + 127 ∈ [1, 127] in its low mantissa bits; shifting by 23
+    // moves them into the exponent field and drops the rest.
+    let bits = (n + (ROUND + 127.0)).to_bits() << 23;
     let v = p * f32::from_bits(bits);
     if x <= -87.0 { 0.0 } else { v }
 }

@@ -4,7 +4,9 @@
 pub mod backward;
 pub mod forward;
 pub mod host;
+pub mod lanes;
 pub mod math;
+pub mod project;
 pub mod voxelize;
 
 pub use backward::{HostGrads, render_backward};

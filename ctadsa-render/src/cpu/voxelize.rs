@@ -67,33 +67,47 @@ pub fn voxelize(g: &HostGaussians, grid: &VoxelGrid, k_sigma: f32) -> Vec<f32> {
             }
         }
     }
+    out.par_chunks_mut(SLAB * ny * nz)
+        .zip(bins.par_iter())
+        .enumerate()
+        .for_each(|(slab, (chunk, ids))| splat_slab(&prepared, ids, grid, k_sigma, slab * SLAB, chunk));
+    out
+}
+
+/// Adds the Gaussians `ids` to the slab of x-planes from `x_first` (`chunk`, `[SLAB, Y, Z]`).
+#[multiversion::multiversion(targets("x86_64+avx2+fma+sse4.1", "x86_64+sse4.1"))]
+fn splat_slab(
+    prepared: &[Option<Prepared>],
+    ids: &[u32],
+    grid: &VoxelGrid,
+    k_sigma: f32,
+    x_first: usize,
+    chunk: &mut [f32],
+) {
+    let [nx, ny, nz] = grid.dims.map(|d| d as usize);
     let k2 = k_sigma * k_sigma;
-    out.par_chunks_mut(SLAB * ny * nz).zip(bins.par_iter()).enumerate().for_each(|(slab, (chunk, ids))| {
-        let x_first = slab * SLAB;
-        for &id in ids {
-            let Some(p) = &prepared[id as usize] else { continue };
-            let q = &p.q;
-            let x_lo = p.lo[0].max(x_first);
-            let x_hi = p.hi[0].min(x_first + SLAB - 1).min(nx - 1);
-            for ix in x_lo..=x_hi {
-                let dx = grid.origin_mm[0] + (ix as f32 + 0.5) * grid.spacing_mm[0] - p.mean[0];
-                for iy in p.lo[1]..=p.hi[1] {
-                    let dy = grid.origin_mm[1] + (iy as f32 + 0.5) * grid.spacing_mm[1] - p.mean[1];
-                    let base = ((ix - x_first) * ny + iy) * nz;
-                    let row = &mut chunk[base + p.lo[2]..=base + p.hi[2]];
-                    for (j, v) in row.iter_mut().enumerate() {
-                        let dz = grid.origin_mm[2] + ((p.lo[2] + j) as f32 + 0.5) * grid.spacing_mm[2] - p.mean[2];
-                        let m = q[0] * dx * dx
-                            + q[3] * dy * dy
-                            + q[5] * dz * dz
-                            + 2.0 * (q[1] * dx * dy + q[2] * dx * dz + q[4] * dy * dz);
-                        if m <= k2 {
-                            *v += p.density * exp_neg(-0.5 * m);
-                        }
+    for &id in ids {
+        let Some(p) = &prepared[id as usize] else { continue };
+        let q = &p.q;
+        let x_lo = p.lo[0].max(x_first);
+        let x_hi = p.hi[0].min(x_first + SLAB - 1).min(nx - 1);
+        for ix in x_lo..=x_hi {
+            let dx = grid.origin_mm[0] + (ix as f32 + 0.5) * grid.spacing_mm[0] - p.mean[0];
+            for iy in p.lo[1]..=p.hi[1] {
+                let dy = grid.origin_mm[1] + (iy as f32 + 0.5) * grid.spacing_mm[1] - p.mean[1];
+                let base = ((ix - x_first) * ny + iy) * nz;
+                let row = &mut chunk[base + p.lo[2]..=base + p.hi[2]];
+                for (j, v) in row.iter_mut().enumerate() {
+                    let dz = grid.origin_mm[2] + ((p.lo[2] + j) as f32 + 0.5) * grid.spacing_mm[2] - p.mean[2];
+                    let m = q[0] * dx * dx
+                        + q[3] * dy * dy
+                        + q[5] * dz * dz
+                        + 2.0 * (q[1] * dx * dy + q[2] * dx * dz + q[4] * dy * dz);
+                    if m <= k2 {
+                        *v += p.density * exp_neg(-0.5 * m);
                     }
                 }
             }
         }
-    });
-    out
+    }
 }
