@@ -18,17 +18,35 @@ pub const TILE: i32 = 32;
 /// Gaussians per parallel work item.
 const CHUNK: usize = 2048;
 
-/// Projects Gaussians `first..first + out.len()` into `out`.
+/// Projects Gaussians `first..first + out.len()` into `out`, and the tile range each footprint
+/// covers into `tiles` (`[tx0, tx1, ty0, ty1]`, inclusive; empty for a culled Gaussian).
 #[multiversion(targets("x86_64+avx2+fma+sse4.1", "x86_64+sse4.1"))]
-fn project_chunk(g: &HostGaussians, first: usize, vp: &ViewParams, k_sigma: f32, out: &mut [Option<Projected>]) {
+fn project_chunk(
+    g: &HostGaussians,
+    first: usize,
+    vp: &ViewParams,
+    k_sigma: f32,
+    out: &mut [Option<Projected>],
+    tiles: &mut [[u16; 4]],
+) {
     project_range(g, first, vp, k_sigma, out, None);
+    for (p, t) in out.iter().zip(tiles) {
+        *t = match p {
+            Some(p) => [p.col_min, p.col_max, p.row_min, p.row_max].map(|v| (v / TILE) as u16),
+            None => [1, 0, 1, 0],
+        };
+    }
 }
 
-/// Projects all Gaussians into one view (`None` = culled).
-pub fn project_all(g: &HostGaussians, vp: &ViewParams, k_sigma: f32) -> Vec<Option<Projected>> {
+/// Projects all Gaussians into one view (`None` = culled), with their tile ranges.
+pub fn project_all(g: &HostGaussians, vp: &ViewParams, k_sigma: f32) -> (Vec<Option<Projected>>, Vec<[u16; 4]>) {
     let mut out = vec![None; g.len()];
-    out.par_chunks_mut(CHUNK).enumerate().for_each(|(c, chunk)| project_chunk(g, c * CHUNK, vp, k_sigma, chunk));
-    out
+    let mut tiles = vec![[0u16; 4]; g.len()];
+    out.par_chunks_mut(CHUNK)
+        .zip(tiles.par_chunks_mut(CHUNK))
+        .enumerate()
+        .for_each(|(c, (chunk, tiles))| project_chunk(g, c * CHUNK, vp, k_sigma, chunk, tiles));
+    (out, tiles)
 }
 
 /// Gaussian indices per tile, in Gaussian order: `ids[offsets[t]..offsets[t + 1]]`.
@@ -39,18 +57,17 @@ pub struct TileBins {
     pub ids: Vec<u32>,
 }
 
-/// Bins footprint bounding boxes into tiles (counting sort; deterministic).
-pub fn bin_tiles(projected: &[Option<Projected>], vp: &ViewParams) -> TileBins {
+/// Bins footprints by their tile ranges (counting sort; deterministic).
+pub fn bin_tiles(ranges: &[[u16; 4]], vp: &ViewParams) -> TileBins {
     let tiles_x = (vp.width as i32 + TILE - 1) / TILE;
     let tiles_y = (vp.height as i32 + TILE - 1) / TILE;
     let n_tiles = (tiles_x * tiles_y) as usize;
     let mut counts = vec![0u32; n_tiles + 1];
-    let range = |p: &Projected| (p.col_min / TILE, p.col_max / TILE, p.row_min / TILE, p.row_max / TILE);
-    for p in projected.iter().flatten() {
-        let (tx0, tx1, ty0, ty1) = range(p);
+    let row_len = tiles_x as usize;
+    for &[tx0, tx1, ty0, ty1] in ranges {
         for ty in ty0..=ty1 {
             for tx in tx0..=tx1 {
-                counts[(ty * tiles_x + tx) as usize + 1] += 1;
+                counts[ty as usize * row_len + tx as usize + 1] += 1;
             }
         }
     }
@@ -60,12 +77,10 @@ pub fn bin_tiles(projected: &[Option<Projected>], vp: &ViewParams) -> TileBins {
     let offsets = counts;
     let mut fill = offsets.clone();
     let mut ids = vec![0u32; offsets[n_tiles] as usize];
-    for (i, p) in projected.iter().enumerate() {
-        let Some(p) = p else { continue };
-        let (tx0, tx1, ty0, ty1) = range(p);
+    for (i, &[tx0, tx1, ty0, ty1]) in ranges.iter().enumerate() {
         for ty in ty0..=ty1 {
             for tx in tx0..=tx1 {
-                let t = (ty * tiles_x + tx) as usize;
+                let t = ty as usize * row_len + tx as usize;
                 ids[fill[t] as usize] = i as u32;
                 fill[t] += 1;
             }
@@ -169,8 +184,8 @@ pub fn render(g: &HostGaussians, views: &[ViewParams], k_sigma: f32) -> Vec<f32>
 
 /// Renders one view into `image` (`H × W`, row-major).
 pub fn render_view(g: &HostGaussians, vp: &ViewParams, k_sigma: f32, image: &mut [f32]) {
-    let projected = project_all(g, vp, k_sigma);
-    let bins = bin_tiles(&projected, vp);
+    let (projected, ranges) = project_all(g, vp, k_sigma);
+    let bins = bin_tiles(&ranges, vp);
     let tiles: Vec<(i32, i32)> = (0..bins.tiles_y).flat_map(|ty| (0..bins.tiles_x).map(move |tx| (tx, ty))).collect();
     let rendered: Vec<Vec<f32>> = tiles
         .par_iter()
@@ -204,6 +219,7 @@ pub fn count_pairs(g: &HostGaussians, views: &[ViewParams], k_sigma: f32) -> u64
         .iter()
         .map(|vp| {
             project_all(g, vp, k_sigma)
+                .0
                 .par_iter()
                 .flatten()
                 .map(|p| {
