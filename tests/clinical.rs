@@ -12,7 +12,8 @@ use ctadsa_core::clinical::import::{DsaOptions, dsa_view, write_dsa_case};
 use ctadsa_core::clinical::prior::{LabelPriorOptions, Visibility, prior_from_labels};
 use ctadsa_core::clinical::simulate::{BOLUS, simulated_run};
 use ctadsa_core::clinical::xa::{XaRunSpec, read_xa_run, write_xa_run};
-use ctadsa_core::synth::{SynthConfig, synthesize};
+use ctadsa_core::synth::{Anatomy, SynthConfig, synthesize};
+use ctadsa_core::tree::prior::PriorThreshold;
 use ctadsa_core::volume::nifti_io::{read_nifti, write_nifti};
 use ctadsa_render::{ConeBeamView, TigreGeometry};
 
@@ -186,6 +187,41 @@ fn topcow_labels_become_a_prior_mesh() {
         let p = narrow.project(*v).unwrap();
         assert!(p.x >= -0.5 && p.x <= 63.5 && p.y >= -0.5 && p.y <= 63.5, "{p:?} outside the detector");
     }
+}
+
+/// A synthetic case from the TopCoW labels whose prior leaves out whole branches (the
+/// communicating arteries 8, 9, 10): the missing mesh is exactly those labels' surface region,
+/// the prior is everything else, and an absent label is an error naming the file.
+#[test]
+fn topcow_synth_drops_whole_labels_from_the_prior() {
+    let labels = |drop: Vec<u32>| SynthConfig {
+        name: "topcow-drop".into(),
+        anatomy: Anatomy::Labels { path: topcow(), labels: vec![], prior_drop_labels: drop },
+        priors: vec![PriorThreshold::DiameterMm(0.0)],
+        detector_px: Some(96),
+        binning: 2,
+        ..SynthConfig::default()
+    };
+    let dir = tmp("topcow-drop");
+    let s = synthesize(&labels(vec![8, 9, 10]), &dir, &mut |_| {}).expect("synthesis");
+    // Labels 8, 9, 10 hold 1,223 of the 7,751 labelled voxels (0.504 × 0.504 × 0.75 mm each).
+    let voxel_mm3 = 0.504 * 0.504 * 0.75;
+    let dropped = s.complete_volume_mm3 - s.prior_volume_mm3;
+    eprintln!(
+        "complete {:.0} mm³, prior {:.0} mm³, dropped {dropped:.1} mm³",
+        s.complete_volume_mm3, s.prior_volume_mm3
+    );
+    assert!((dropped / voxel_mm3 - 1223.0).abs() < 1.0, "dropped {:.1} voxels", dropped / voxel_mm3);
+    let case = Case::load(&dir).unwrap();
+    let prior = case.file.prior.as_ref().unwrap();
+    assert!(prior.description.contains("[8, 9, 10]"), "{}", prior.description);
+    let missing = case.dir.join(case.file.ground_truth.as_ref().unwrap().missing_mesh.as_ref().unwrap());
+    assert!(!ctadsa_core::mesh::io::read_mesh(&missing).unwrap().is_empty(), "the dropped branches are missing");
+    // With nothing dropped and no thickness threshold, nothing is missing.
+    let all = synthesize(&labels(vec![]), &tmp("topcow-nodrop"), &mut |_| {}).expect("synthesis");
+    assert_eq!(all.prior_volume_mm3, all.complete_volume_mm3);
+    let e = synthesize(&labels(vec![14]), &tmp("topcow-drop14"), &mut |_| {}).unwrap_err().to_string();
+    assert!(e.contains("label 14") && e.contains("topcow_ct_roi_003.nii.gz"), "{e}");
 }
 
 /// The registration example of docs/CLINICAL.md §4 is the reference AP view.

@@ -29,6 +29,10 @@ pub struct SynthArgs {
     /// Label values to use from --labels (comma-separated; default: every non-zero label).
     #[arg(long, value_delimiter = ',')]
     label_ids: Vec<u32>,
+    /// Label values from --labels to leave out of the prior whatever their thickness (whole
+    /// branches missing from the prior, e.g. TopCoW's communicating arteries 8,9,10).
+    #[arg(long, value_delimiter = ',', requires = "labels")]
+    prior_drop_labels: Vec<u32>,
     /// Seed of the procedural tree.
     #[arg(long, default_value_t = 1)]
     seed: u64,
@@ -162,7 +166,15 @@ pub fn run(args: SynthArgs) -> Result<()> {
             .next()
             .unwrap_or("labels")
             .to_string();
-        jobs.push((Anatomy::Labels { path: l.clone(), labels: args.label_ids.clone() }, stem, args.out.clone()));
+        jobs.push((
+            Anatomy::Labels {
+                path: l.clone(),
+                labels: args.label_ids.clone(),
+                prior_drop_labels: args.prior_drop_labels.clone(),
+            },
+            stem,
+            args.out.clone(),
+        ));
     } else {
         let p = ProceduralTree { seed: args.seed, terminals: args.terminals, ..Default::default() };
         jobs.push((Anatomy::Procedural(p), format!("procedural-seed{}", args.seed), args.out.clone()));
@@ -177,9 +189,9 @@ pub fn run(args: SynthArgs) -> Result<()> {
         })
         .with_context(|| format!("synthesising case `{name}`"))?;
         for w in &summary.warnings {
-            pb.println(format!("warning: {w}"));
+            pb.suspend(|| println!("warning: {w}"));
         }
-        pb.println(format!(
+        pb.suspend(|| println!(
             "{name}: {} views, {:?} voxels of {:.3} mm, vessel volume {:.0} mm³ (prior {:.0} mm³ at ≥ {:.2} mm) → {}",
             summary.views,
             summary.voxels,

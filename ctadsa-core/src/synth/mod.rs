@@ -43,10 +43,14 @@ pub enum Anatomy {
     /// A centreline tree from an SWC file.
     Swc { path: PathBuf },
     /// A label volume (NIfTI); `labels` selects label values (empty: every non-zero label).
+    /// `prior_drop_labels` are left out of the prior whatever their thickness: whole named
+    /// branches (e.g. the communicating arteries) become the missing vessels.
     Labels {
         path: PathBuf,
         #[serde(default)]
         labels: Vec<u32>,
+        #[serde(default)]
+        prior_drop_labels: Vec<u32>,
     },
 }
 
@@ -191,7 +195,7 @@ fn from_tree(mut tree: VesselTree, cfg: &SynthConfig, source: String, warnings: 
     Ok(Rasterised { complete, priors, tree: Some(tree), source, warnings })
 }
 
-fn from_labels(path: &Path, labels: &[u32], cfg: &SynthConfig) -> Result<Rasterised> {
+fn from_labels(path: &Path, labels: &[u32], prior_drop_labels: &[u32], cfg: &SynthConfig) -> Result<Rasterised> {
     if cfg.rotation_deg != [0.0; 3] || cfg.translation_mm != [0.0; 3] {
         return Err(CoreError::invalid(
             "rotation/translation are supported for trees only; resample a label volume before synthesis",
@@ -208,6 +212,11 @@ fn from_labels(path: &Path, labels: &[u32], cfg: &SynthConfig) -> Result<Rasteri
         .collect();
     if !selected.contains(&1) {
         return Err(CoreError::format(path, format!("no voxel carries the selected labels {labels:?}")));
+    }
+    let dropped: Vec<bool> =
+        vol.data.iter().map(|&v| prior_drop_labels.contains(&(v.round().max(0.0) as u32))).collect();
+    if let Some(l) = prior_drop_labels.iter().find(|&&l| !vol.data.iter().any(|&v| v.round() == l as f32)) {
+        return Err(CoreError::format(path, format!("no voxel carries label {l}, which the prior should leave out")));
     }
     // Axis-aligned on the file's voxel sizes, centred on the isocentre (the direction matrix is
     // ignored, as in the reference implementation).
@@ -228,7 +237,13 @@ fn from_labels(path: &Path, labels: &[u32], cfg: &SynthConfig) -> Result<Rasteri
                 th.get(((p / 100.0) * th.len() as f64) as usize).copied().unwrap_or(f64::INFINITY)
             }
         };
-        let data = mask.data.iter().zip(&thickness).map(|(&m, &t)| (m == 1 && t >= d) as u8 as f32).collect();
+        let data = mask
+            .data
+            .iter()
+            .zip(&thickness)
+            .zip(&dropped)
+            .map(|((&m, &t), &drop)| (m == 1 && t >= d && !drop) as u8 as f32)
+            .collect();
         priors.push((d, Volume { grid, index_to_world: grid.index_to_world(), data }));
     }
     Ok(Rasterised {
@@ -271,7 +286,7 @@ pub fn synthesize(cfg: &SynthConfig, out: &Path, progress: &mut dyn FnMut(&str))
             let warnings = f.warnings.iter().map(|w| format!("{}:{}: {}", path.display(), w.line, w.problem)).collect();
             from_tree(f.tree, cfg, format!("SWC tree {}", path.display()), warnings)?
         }
-        Anatomy::Labels { path, labels } => from_labels(path, labels, cfg)?,
+        Anatomy::Labels { path, labels, prior_drop_labels } => from_labels(path, labels, prior_drop_labels, cfg)?,
     };
     let grid = r.complete.grid;
 
@@ -394,7 +409,12 @@ pub fn synthesize(cfg: &SynthConfig, out: &Path, progress: &mut dyn FnMut(&str))
         views: entries,
         prior: Some(PriorEntry {
             mesh: format!("priors/{tag0}/prior.obj"),
-            description: format!("vessels with diameter ≥ {d0:.2} mm"),
+            description: match &cfg.anatomy {
+                Anatomy::Labels { prior_drop_labels, .. } if !prior_drop_labels.is_empty() => {
+                    format!("vessels with diameter ≥ {d0:.2} mm, without labels {prior_drop_labels:?}")
+                }
+                _ => format!("vessels with diameter ≥ {d0:.2} mm"),
+            },
             threshold_mm: Some(*d0),
         }),
         ground_truth: Some(GroundTruth {
