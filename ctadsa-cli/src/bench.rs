@@ -16,7 +16,7 @@ use ctadsa_core::tree::gaussians::{GaussianArrays, tree_gaussians};
 use ctadsa_core::tree::procedural::ProceduralTree;
 use ctadsa_core::volume::{Grid, Volume};
 use ctadsa_render::cpu::{self, HostGaussians};
-use ctadsa_render::{ConeBeamView, Gaussians, RenderSettings, TigreGeometry, ViewSet};
+use ctadsa_render::{ConeBeamView, Gaussians, RenderSettings, TigreGeometry, ViewSet, VoxelGrid};
 
 use crate::backend::BackendKind;
 
@@ -107,17 +107,18 @@ pub fn vessel_scene(count: usize) -> Result<GaussianArrays> {
     Ok(tree_gaussians(&tree, count, 0.3))
 }
 
+/// The benchmark's two views (AP, LAT): reference geometry, `size²` pixels over 256 mm.
+fn two_view_geometries(size: u32) -> [TigreGeometry; 2] {
+    [-90.0, 0.0].map(|a| TigreGeometry {
+        detector_px: [size, size],
+        pixel_mm: [256.0 / size as f64, 256.0 / size as f64],
+        ..TigreGeometry::reference(a)
+    })
+}
+
 fn two_views(size: u32) -> Result<ViewSet> {
-    let views = [-90.0, 0.0]
-        .iter()
-        .map(|&a| {
-            ConeBeamView::from_tigre(&TigreGeometry {
-                detector_px: [size, size],
-                pixel_mm: [256.0 / size as f64, 256.0 / size as f64],
-                ..TigreGeometry::reference(a)
-            })
-        })
-        .collect::<std::result::Result<Vec<_>, _>>()?;
+    let views =
+        two_view_geometries(size).iter().map(ConeBeamView::from_tigre).collect::<std::result::Result<Vec<_>, _>>()?;
     Ok(ViewSet::new(views)?)
 }
 
@@ -176,8 +177,71 @@ fn bench_render(gaussians: usize, size: u32, repeats: usize, backend: Option<Bac
         );
     }
     if let Some(m) = peak_rss_mib() {
-        println!("\npeak resident memory: {m:.0} MiB");
+        println!("\npeak resident memory (scene, images, kernels): {m:.0} MiB");
     }
+    render_peers(&host, size, k, t_fwd, &image)
+}
+
+/// The peers of `bench render`, in the same run: the scene voxelised (our CPU `voxelize`, 256³
+/// voxels over 130 mm) and projected into the same two views by our voxel projector and by
+/// plastimatch's CPU DRR, against the Gaussian forward's time `t_fwd` (s) and `image`.
+fn render_peers(host: &HostGaussians, size: u32, k: f32, t_fwd: f64, image: &[f32]) -> Result<()> {
+    const N: usize = 256;
+    let h = 130.0 / N as f64;
+    let grid = Grid { dims: [N; 3], spacing_mm: [h; 3], origin_mm: [-65.0; 3] };
+    let vgrid = VoxelGrid { origin_mm: [-65.0; 3], spacing_mm: [h as f32; 3], dims: [N as u32; 3] };
+    let (t_vox, data) = time(1, || cpu::voxelize(host, &vgrid, k));
+    let vol = Volume { grid, index_to_world: grid.index_to_world(), data };
+    let geoms = two_view_geometries(size);
+    let views: Vec<ConeBeamView> = geoms.iter().map(ConeBeamView::from_tigre).collect::<std::result::Result<_, _>>()?;
+    let (t_ours, _) = time(1, || project_volume(&vol, &views));
+    let rays = 2.0 * (size * size) as f64;
+    println!();
+    println!(
+        "Peers, same scene and views: the Gaussians voxelised on {N}³ voxels of {h:.3} mm ({:.0} ms), then projected.",
+        t_vox * 1e3
+    );
+    println!();
+    println!("| projector (both views) | time (ms) | rays / s (M) |");
+    println!("|---|---:|---:|");
+    println!(
+        "| ctadsa Gaussian forward (exact line integrals, this table's first row) | {:.1} | {:.1} |",
+        t_fwd * 1e3,
+        rays / t_fwd / 1e6
+    );
+    println!("| ctadsa voxel projector (exact traversal) | {:.1} | {:.1} |", t_ours * 1e3, rays / t_ours / 1e6);
+    let work = std::env::temp_dir().join(format!("ctadsa-bench-render-{}", std::process::id()));
+    std::fs::create_dir_all(&work)?;
+    let mha = work.join("scene.mha");
+    write_mha(&mha, &vol)?;
+    let mut theirs = Vec::new();
+    let mut t_theirs = 0.0;
+    for g in &geoms {
+        match plastimatch_drr(&mha, g, &work)? {
+            Some((img, t)) => {
+                theirs.extend(img);
+                t_theirs += t;
+            }
+            None => break,
+        }
+    }
+    std::fs::remove_dir_all(&work).ok();
+    if theirs.len() != image.len() {
+        println!("| plastimatch | not installed (apt-get install plastimatch) | |");
+        return Ok(());
+    }
+    println!(
+        "| plastimatch 1.9 drr -A cpu -i exact (process per view, incl. file I/O) | {:.1} | {:.1} |",
+        t_theirs * 1e3,
+        rays / t_theirs / 1e6
+    );
+    let num: f64 = theirs.iter().zip(image).map(|(a, b)| (*a as f64 - *b as f64).powi(2)).sum();
+    let den: f64 = image.iter().map(|b| (*b as f64).powi(2)).sum();
+    println!(
+        "\nrelative L2 difference, plastimatch's DRR of the voxelised scene against the Gaussian render: {:.2e} \
+         (voxelisation at {h:.2} mm of Gaussians with σ ≈ 0.3 mm)",
+        (num / den).sqrt()
+    );
     Ok(())
 }
 
