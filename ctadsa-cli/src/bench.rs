@@ -145,6 +145,11 @@ fn bench_render(gaussians: usize, size: u32, repeats: usize, backend: Option<Bac
         "pairs evaluated (pixels inside k-σ footprints): {pairs} ({:.1} per Gaussian per view)",
         pairs as f64 / (2.0 * scene.len() as f64)
     );
+    let lanes = cpu::count_lanes(&host, views.packed(), k);
+    println!(
+        "pixel lanes the forward kernel evaluates (8-pixel row chunks over footprint boxes): {lanes} ({:.2} per pair)",
+        lanes as f64 / pairs as f64
+    );
     println!();
     println!("| stage | time per call (ms) | Gaussian-ray pairs / s (M) |");
     println!("|---|---:|---:|");

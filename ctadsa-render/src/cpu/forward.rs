@@ -239,3 +239,27 @@ pub fn count_pairs(g: &HostGaussians, views: &[ViewParams], k_sigma: f32) -> u64
         })
         .sum()
 }
+
+/// Number of pixel lanes the forward kernel evaluates (footprint boxes clipped to tiles, rows
+/// rounded up to whole [`LANES`]-pixel chunks), for throughput figures: the ratio to
+/// [`count_pairs`] is the share of the vector work spent outside footprints.
+pub fn count_lanes(g: &HostGaussians, views: &[ViewParams], k_sigma: f32) -> u64 {
+    views
+        .iter()
+        .map(|vp| {
+            project_all(g, vp, k_sigma)
+                .0
+                .par_iter()
+                .flatten()
+                .map(|p| {
+                    let mut lanes = 0u64;
+                    for tx in p.col_min / TILE..=p.col_max / TILE {
+                        let width = (p.col_max.min(tx * TILE + TILE - 1) - p.col_min.max(tx * TILE) + 1) as u64;
+                        lanes += width.div_ceil(LANES as u64) * LANES as u64;
+                    }
+                    lanes * (p.row_max - p.row_min + 1) as u64
+                })
+                .sum::<u64>()
+        })
+        .sum()
+}

@@ -10,6 +10,6 @@ pub mod project;
 pub mod voxelize;
 
 pub use backward::{HostGrads, render_backward};
-pub use forward::{count_pairs, render};
+pub use forward::{count_lanes, count_pairs, render};
 pub use host::HostGaussians;
 pub use voxelize::voxelize;
