@@ -1,8 +1,10 @@
 //! CPU forward pass: every pixel the exact line integral of the Gaussian mixture along its ray.
 //!
-//! Per view: project every Gaussian (parallel), bin the footprints into square tiles (Gaussian
-//! order kept, so the result does not depend on the thread count), then render the tiles in
-//! parallel, each Gaussian only over the exact per-row span of its footprint.
+//! Per view: project every Gaussian (parallel), bin the footprints into bands of [`BAND`] whole
+//! image rows (Gaussian order kept, so the result does not depend on the thread count), then
+//! render the bands in parallel, each Gaussian over its footprint's bounding box. Bands span the
+//! whole width so that no footprint row is cut into two pieces (each rounded up to whole
+//! [`LANES`]-pixel chunks).
 
 use multiversion::multiversion;
 use rayon::prelude::*;
@@ -12,14 +14,14 @@ use super::math::{Projected, RowEval, exp_neg};
 use super::project::project_range;
 use crate::view_params::ViewParams;
 
-/// Tile edge in pixels.
-pub const TILE: i32 = 32;
+/// Image rows per band.
+pub const BAND: i32 = 16;
 
 /// Gaussians per parallel work item.
 const CHUNK: usize = 2048;
 
-/// Projects Gaussians `first..first + out.len()` into `out`, and the tile range each footprint
-/// covers into `tiles` (`[tx0, tx1, ty0, ty1]`, inclusive; empty for a culled Gaussian).
+/// Projects Gaussians `first..first + out.len()` into `out`, and the band range each footprint
+/// covers into `bands` (`[first, last]`, inclusive; empty for a culled Gaussian).
 #[multiversion(targets("x86_64+avx2+fma+sse4.1", "x86_64+sse4.1"))]
 fn project_chunk(
     g: &HostGaussians,
@@ -27,66 +29,56 @@ fn project_chunk(
     vp: &ViewParams,
     k_sigma: f32,
     out: &mut [Option<Projected>],
-    tiles: &mut [[u16; 4]],
+    bands: &mut [[u16; 2]],
 ) {
     project_range(g, first, vp, k_sigma, out, None);
-    for (p, t) in out.iter().zip(tiles) {
-        *t = match p {
-            Some(p) => [p.col_min, p.col_max, p.row_min, p.row_max].map(|v| (v / TILE) as u16),
-            None => [1, 0, 1, 0],
+    for (p, b) in out.iter().zip(bands) {
+        *b = match p {
+            Some(p) => [p.row_min, p.row_max].map(|v| (v / BAND) as u16),
+            None => [1, 0],
         };
     }
 }
 
-/// Projects all Gaussians into one view (`None` = culled), with their tile ranges.
-pub fn project_all(g: &HostGaussians, vp: &ViewParams, k_sigma: f32) -> (Vec<Option<Projected>>, Vec<[u16; 4]>) {
+/// Projects all Gaussians into one view (`None` = culled), with their band ranges.
+pub fn project_all(g: &HostGaussians, vp: &ViewParams, k_sigma: f32) -> (Vec<Option<Projected>>, Vec<[u16; 2]>) {
     let mut out = vec![None; g.len()];
-    let mut tiles = vec![[0u16; 4]; g.len()];
+    let mut bands = vec![[0u16; 2]; g.len()];
     out.par_chunks_mut(CHUNK)
-        .zip(tiles.par_chunks_mut(CHUNK))
+        .zip(bands.par_chunks_mut(CHUNK))
         .enumerate()
-        .for_each(|(c, (chunk, tiles))| project_chunk(g, c * CHUNK, vp, k_sigma, chunk, tiles));
-    (out, tiles)
+        .for_each(|(c, (chunk, bands))| project_chunk(g, c * CHUNK, vp, k_sigma, chunk, bands));
+    (out, bands)
 }
 
-/// Gaussian indices per tile, in Gaussian order: `ids[offsets[t]..offsets[t + 1]]`.
-pub struct TileBins {
-    pub tiles_x: i32,
-    pub tiles_y: i32,
+/// Gaussian indices per band, in Gaussian order: `ids[offsets[b]..offsets[b + 1]]`.
+pub struct BandBins {
     pub offsets: Vec<u32>,
     pub ids: Vec<u32>,
 }
 
-/// Bins footprints by their tile ranges (counting sort; deterministic).
-pub fn bin_tiles(ranges: &[[u16; 4]], vp: &ViewParams) -> TileBins {
-    let tiles_x = (vp.width as i32 + TILE - 1) / TILE;
-    let tiles_y = (vp.height as i32 + TILE - 1) / TILE;
-    let n_tiles = (tiles_x * tiles_y) as usize;
-    let mut counts = vec![0u32; n_tiles + 1];
-    let row_len = tiles_x as usize;
-    for &[tx0, tx1, ty0, ty1] in ranges {
-        for ty in ty0..=ty1 {
-            for tx in tx0..=tx1 {
-                counts[ty as usize * row_len + tx as usize + 1] += 1;
-            }
+/// Bins footprints by their band ranges (counting sort; deterministic).
+pub fn bin_bands(ranges: &[[u16; 2]], vp: &ViewParams) -> BandBins {
+    let n_bands = (vp.height as i32 + BAND - 1) / BAND;
+    let mut counts = vec![0u32; n_bands as usize + 1];
+    for &[b0, b1] in ranges {
+        for b in b0..=b1 {
+            counts[b as usize + 1] += 1;
         }
     }
-    for t in 0..n_tiles {
-        counts[t + 1] += counts[t];
+    for b in 0..n_bands as usize {
+        counts[b + 1] += counts[b];
     }
     let offsets = counts;
     let mut fill = offsets.clone();
-    let mut ids = vec![0u32; offsets[n_tiles] as usize];
-    for (i, &[tx0, tx1, ty0, ty1]) in ranges.iter().enumerate() {
-        for ty in ty0..=ty1 {
-            for tx in tx0..=tx1 {
-                let t = ty as usize * row_len + tx as usize;
-                ids[fill[t] as usize] = i as u32;
-                fill[t] += 1;
-            }
+    let mut ids = vec![0u32; offsets[n_bands as usize] as usize];
+    for (i, &[b0, b1]) in ranges.iter().enumerate() {
+        for b in b0..=b1 {
+            ids[fill[b as usize] as usize] = i as u32;
+            fill[b as usize] += 1;
         }
     }
-    TileBins { tiles_x, tiles_y, offsets, ids }
+    BandBins { offsets, ids }
 }
 
 /// Pixels per inner-loop chunk (the lane arrays vectorise).
@@ -97,7 +89,7 @@ const LANES: usize = 8;
 /// rows are evaluated together (independent dependency chains, so the long-latency division,
 /// square root and `exp` of one row overlap those of the next). Works in whole chunks of
 /// [`LANES`] pixels: lanes past `c1` or outside the footprint add exactly 0, so each row of
-/// `out` must extend `LANES − 1` values past `c1` (the tile buffer is padded).
+/// `out` must extend `LANES − 1` values past `c1` (the band buffer is padded).
 #[inline(always)]
 fn splat_rows<const R: usize>(
     p: &Projected,
@@ -142,30 +134,35 @@ fn splat_rows<const R: usize>(
     }
 }
 
-/// Renders one tile into `buf` (`TILE × TILE` row-major, plus [`LANES`] padding).
+/// Renders band `band` into `buf` ([`BAND`] rows of `stride` values, `stride ≥ width +
+/// LANES`, so that whole chunks never run past a row).
 #[multiversion(targets("x86_64+avx2+fma+sse4.1", "x86_64+sse4.1"))]
-fn render_tile(projected: &[Option<Projected>], ids: &[u32], vp: &ViewParams, tx: i32, ty: i32, buf: &mut [f32]) {
-    let (x_lo, y_lo) = (tx * TILE, ty * TILE);
-    let x_hi = (x_lo + TILE - 1).min(vp.width as i32 - 1);
-    let y_hi = (y_lo + TILE - 1).min(vp.height as i32 - 1);
+fn render_band(
+    projected: &[Option<Projected>],
+    ids: &[u32],
+    vp: &ViewParams,
+    band: i32,
+    stride: usize,
+    buf: &mut [f32],
+) {
+    let y_lo = band * BAND;
+    let y_hi = (y_lo + BAND - 1).min(vp.height as i32 - 1);
     for &id in ids {
         let Some(p) = &projected[id as usize] else { continue };
         let r0 = p.row_min.max(y_lo);
         let r1 = p.row_max.min(y_hi);
-        let lo = p.col_min.max(x_lo);
-        let hi = p.col_max.min(x_hi);
+        let (lo, hi) = (p.col_min, p.col_max);
         if lo > hi {
             continue;
         }
-        let stride = TILE as usize;
         let mut row = r0;
         while row < r1 {
-            let start = ((row - y_lo) * TILE + (lo - x_lo)) as usize;
+            let start = (row - y_lo) as usize * stride + lo as usize;
             splat_rows::<2>(p, vp, row, lo, hi, stride, &mut buf[start..]);
             row += 2;
         }
         if row == r1 {
-            let start = ((row - y_lo) * TILE + (lo - x_lo)) as usize;
+            let start = (row - y_lo) as usize * stride + lo as usize;
             splat_rows::<1>(p, vp, row, lo, hi, stride, &mut buf[start..]);
         }
     }
@@ -185,31 +182,17 @@ pub fn render(g: &HostGaussians, views: &[ViewParams], k_sigma: f32) -> Vec<f32>
 /// Renders one view into `image` (`H × W`, row-major).
 pub fn render_view(g: &HostGaussians, vp: &ViewParams, k_sigma: f32, image: &mut [f32]) {
     let (projected, ranges) = project_all(g, vp, k_sigma);
-    let bins = bin_tiles(&ranges, vp);
-    let tiles: Vec<(i32, i32)> = (0..bins.tiles_y).flat_map(|ty| (0..bins.tiles_x).map(move |tx| (tx, ty))).collect();
-    let rendered: Vec<Vec<f32>> = tiles
-        .par_iter()
-        .map(|&(tx, ty)| {
-            let t = (ty * bins.tiles_x + tx) as usize;
-            let ids = &bins.ids[bins.offsets[t] as usize..bins.offsets[t + 1] as usize];
-            let mut buf = vec![0.0f32; (TILE * TILE) as usize + LANES];
-            render_tile(&projected, ids, vp, tx, ty, &mut buf);
-            buf
-        })
-        .collect();
+    let bins = bin_bands(&ranges, vp);
     let w = vp.width as usize;
-    for (&(tx, ty), buf) in tiles.iter().zip(&rendered) {
-        let x_lo = (tx * TILE) as usize;
-        let cols = (w - x_lo).min(TILE as usize);
-        for r in 0..TILE as usize {
-            let row = ty as usize * TILE as usize + r;
-            if row >= vp.height as usize {
-                break;
-            }
-            let dst = &mut image[row * w + x_lo..row * w + x_lo + cols];
-            dst.copy_from_slice(&buf[r * TILE as usize..r * TILE as usize + cols]);
+    let stride = w + LANES;
+    image.par_chunks_mut(BAND as usize * w).enumerate().for_each(|(b, rows)| {
+        let ids = &bins.ids[bins.offsets[b] as usize..bins.offsets[b + 1] as usize];
+        let mut buf = vec![0.0f32; BAND as usize * stride];
+        render_band(&projected, ids, vp, b as i32, stride, &mut buf);
+        for (dst, src) in rows.chunks_mut(w).zip(buf.chunks(stride)) {
+            dst.copy_from_slice(&src[..w]);
         }
-    }
+    });
 }
 
 /// Number of (pixel, Gaussian) pairs that contribute (pixels whose ray meets the k-σ
@@ -240,9 +223,9 @@ pub fn count_pairs(g: &HostGaussians, views: &[ViewParams], k_sigma: f32) -> u64
         .sum()
 }
 
-/// Number of pixel lanes the forward kernel evaluates (footprint boxes clipped to tiles, rows
-/// rounded up to whole [`LANES`]-pixel chunks), for throughput figures: the ratio to
-/// [`count_pairs`] is the share of the vector work spent outside footprints.
+/// Number of pixel lanes the forward kernel evaluates (footprint boxes, rows rounded up to whole
+/// [`LANES`]-pixel chunks), for throughput figures: the ratio to [`count_pairs`] is the share of
+/// the vector work spent outside footprints.
 pub fn count_lanes(g: &HostGaussians, views: &[ViewParams], k_sigma: f32) -> u64 {
     views
         .iter()
@@ -252,12 +235,8 @@ pub fn count_lanes(g: &HostGaussians, views: &[ViewParams], k_sigma: f32) -> u64
                 .par_iter()
                 .flatten()
                 .map(|p| {
-                    let mut lanes = 0u64;
-                    for tx in p.col_min / TILE..=p.col_max / TILE {
-                        let width = (p.col_max.min(tx * TILE + TILE - 1) - p.col_min.max(tx * TILE) + 1) as u64;
-                        lanes += width.div_ceil(LANES as u64) * LANES as u64;
-                    }
-                    lanes * (p.row_max - p.row_min + 1) as u64
+                    let width = (p.col_max - p.col_min + 1) as u64;
+                    width.div_ceil(LANES as u64) * LANES as u64 * (p.row_max - p.row_min + 1) as u64
                 })
                 .sum::<u64>()
         })
