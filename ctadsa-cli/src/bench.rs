@@ -147,7 +147,7 @@ fn bench_render(gaussians: usize, size: u32, repeats: usize, backend: Option<Bac
     );
     let lanes = cpu::count_lanes(&host, views.packed(), k);
     println!(
-        "pixel lanes the forward kernel evaluates (8-pixel row chunks over footprint boxes): {lanes} ({:.2} per pair)",
+        "pixel lanes the forward kernel evaluates (8-lane vectors over footprint boxes): {lanes} ({:.2} per pair)",
         lanes as f64 / pairs as f64
     );
     println!();

@@ -84,6 +84,42 @@ pub fn bin_bands(ranges: &[[u16; 2]], vp: &ViewParams) -> BandBins {
 /// Pixels per inner-loop chunk (the lane arrays vectorise).
 const LANES: usize = 8;
 
+/// Gaussian `p`'s line integral through the pixel at column `col` of the row `re` was made for,
+/// or exactly 0 past column `last` or outside the k-σ footprint.
+#[inline(always)]
+fn pixel(p: &Projected, vp: &ViewParams, re: &RowEval, col: f32, last: f32) -> f32 {
+    let dx = (col - p.u0) * vp.inv_fx;
+    let alpha = re.alpha(dx);
+    let quad = re.quad(dx);
+    let r2 = re.ray_len2(p.x0 + dx);
+    let inv_a = 1.0 / alpha;
+    let value = p.amp * (r2 * inv_a).sqrt() * exp_neg(-0.5 * quad * inv_a);
+    let keep = (col <= last) & p.sees(quad, alpha);
+    if keep { value } else { 0.0 }
+}
+
+/// Adds Gaussian `p` to two rows (`row`, `row + 1`) of a footprint at most `LANES / 2` pixels
+/// wide (`c1 − c0 < LANES / 2`) with one [`LANES`]-wide vector: half the lanes per row, so
+/// narrow footprints — most of them in vessel scenes — waste half as many lanes as with
+/// [`splat_rows`]. Same storage as [`splat_rows`].
+#[inline(always)]
+fn splat_narrow_pair(p: &Projected, vp: &ViewParams, row: i32, c0: i32, c1: i32, stride: usize, out: &mut [f32]) {
+    const HALF: usize = LANES / 2;
+    let re = [p.row_eval(row, vp), p.row_eval(row + 1, vp)];
+    let lane_col: [f32; LANES] = std::array::from_fn(|l| (l % HALF) as f32);
+    let (first, last) = (c0 as f32, c1 as f32);
+    let mut v = [0.0f32; LANES];
+    for (l, o) in v.iter_mut().enumerate() {
+        *o = pixel(p, vp, &re[l / HALF], first + lane_col[l], last);
+    }
+    for (r, v) in v.chunks_exact(HALF).enumerate() {
+        let chunk: &mut [f32; HALF] = (&mut out[r * stride..r * stride + HALF]).try_into().expect("padded buffer");
+        for (o, v) in chunk.iter_mut().zip(v) {
+            *o += v;
+        }
+    }
+}
+
 /// Adds Gaussian `p` to the pixels of columns `[c0, c1]` of `R` consecutive image rows from
 /// `row`, stored from `out[0]` (row `row`, column `c0`) with `stride` values between rows. The
 /// rows are evaluated together (independent dependency chains, so the long-latency division,
@@ -111,16 +147,7 @@ fn splat_rows<const R: usize>(
         let mut v = [[0.0f32; LANES]; R];
         for (re, v) in re.iter().zip(v.iter_mut()) {
             for (l, o) in v.iter_mut().enumerate() {
-                let col = first + lane_col[l];
-                let dx = (col - p.u0) * vp.inv_fx;
-                let alpha = re.alpha(dx);
-                let quad = re.quad(dx);
-                let xn = p.x0 + dx;
-                let r2 = re.ray_len2(xn);
-                let inv_a = 1.0 / alpha;
-                let value = p.amp * (r2 * inv_a).sqrt() * exp_neg(-0.5 * quad * inv_a);
-                let keep = (col <= last) & p.sees(quad, alpha);
-                *o = if keep { value } else { 0.0 };
+                *o = pixel(p, vp, re, first + lane_col[l], last);
             }
         }
         for (r, v) in v.iter().enumerate() {
@@ -155,10 +182,15 @@ fn render_band(
         if lo > hi {
             continue;
         }
+        let narrow = hi - lo < LANES as i32 / 2;
         let mut row = r0;
         while row < r1 {
             let start = (row - y_lo) as usize * stride + lo as usize;
-            splat_rows::<2>(p, vp, row, lo, hi, stride, &mut buf[start..]);
+            if narrow {
+                splat_narrow_pair(p, vp, row, lo, hi, stride, &mut buf[start..]);
+            } else {
+                splat_rows::<2>(p, vp, row, lo, hi, stride, &mut buf[start..]);
+            }
             row += 2;
         }
         if row == r1 {
@@ -224,7 +256,7 @@ pub fn count_pairs(g: &HostGaussians, views: &[ViewParams], k_sigma: f32) -> u64
 }
 
 /// Number of pixel lanes the forward kernel evaluates (footprint boxes, rows rounded up to whole
-/// [`LANES`]-pixel chunks), for throughput figures: the ratio to [`count_pairs`] is the share of
+/// [`LANES`]-pixel chunks, row pairs of narrow footprints sharing one), for throughput figures: the ratio to [`count_pairs`] is the share of
 /// the vector work spent outside footprints.
 pub fn count_lanes(g: &HostGaussians, views: &[ViewParams], k_sigma: f32) -> u64 {
     views
@@ -235,8 +267,14 @@ pub fn count_lanes(g: &HostGaussians, views: &[ViewParams], k_sigma: f32) -> u64
                 .par_iter()
                 .flatten()
                 .map(|p| {
-                    let width = (p.col_max - p.col_min + 1) as u64;
-                    width.div_ceil(LANES as u64) * LANES as u64 * (p.row_max - p.row_min + 1) as u64
+                    let rows = (p.row_max - p.row_min + 1) as u64;
+                    if p.col_max - p.col_min < LANES as i32 / 2 {
+                        // Row pairs share a vector ([`splat_narrow_pair`]); an odd last row gets its own.
+                        (rows / 2 + rows % 2) * LANES as u64
+                    } else {
+                        let width = (p.col_max - p.col_min + 1) as u64;
+                        width.div_ceil(LANES as u64) * LANES as u64 * rows
+                    }
                 })
                 .sum::<u64>()
         })
