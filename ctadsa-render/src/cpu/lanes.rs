@@ -14,9 +14,10 @@ pub const LANES: usize = 8;
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct F8(pub [f32; LANES]);
 
-/// Eight booleans (one per lane).
+/// Eight booleans (one per lane), each stored as a full-width lane mask (`0` or `!0`), the form
+/// vector compares produce and blends consume (a `bool` per lane compiled to byte extractions).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct M8(pub [bool; LANES]);
+pub struct M8([u32; LANES]);
 
 impl F8 {
     /// All lanes `v`.
@@ -45,9 +46,9 @@ impl F8 {
 
     #[inline(always)]
     fn test(self, o: Self, f: impl Fn(f32, f32) -> bool) -> M8 {
-        let mut out = [false; LANES];
+        let mut out = [0; LANES];
         for l in 0..LANES {
-            out[l] = f(self.0[l], o.0[l]);
+            out[l] = if f(self.0[l], o.0[l]) { !0 } else { 0 };
         }
         M8(out)
     }
@@ -114,13 +115,28 @@ impl F8 {
 }
 
 impl M8 {
-    /// Per lane: `a` where the mask is set, else `b`.
+    /// Every lane set.
+    pub const ALL: M8 = M8([!0; LANES]);
+
+    /// Whether lane `l` is set.
+    #[inline(always)]
+    pub fn lane(self, l: usize) -> bool {
+        self.0[l] != 0
+    }
+
+    /// The lanes as booleans.
+    pub fn to_bools(self) -> [bool; LANES] {
+        std::array::from_fn(|l| self.lane(l))
+    }
+
+    /// Per lane: `a` where the mask is set, else `b` (a bitwise blend).
     #[inline(always)]
     pub fn select(self, a: impl Into<F8>, b: impl Into<F8>) -> F8 {
         let (a, b) = (a.into(), b.into());
         let mut out = [0.0; LANES];
         for l in 0..LANES {
-            out[l] = if self.0[l] { a.0[l] } else { b.0[l] };
+            let m = self.0[l];
+            out[l] = f32::from_bits((a.0[l].to_bits() & m) | (b.0[l].to_bits() & !m));
         }
         F8(out)
     }
@@ -218,8 +234,8 @@ mod tests {
         assert_eq!((a * b).0[1], -4.0);
         assert_eq!((1.0 / b).0[0], 0.5);
         assert_eq!(a.max(0.0).0[2], 0.0, "max ignores NaN like f32::max");
-        assert_eq!(a.is_finite().0, [true, true, false, true, true, false, true, true]);
-        assert_eq!(a.gt(0.0).0, [true, false, false, true, false, true, false, true]);
+        assert_eq!(a.is_finite().to_bools(), [true, true, false, true, true, false, true, true]);
+        assert_eq!(a.gt(0.0).to_bools(), [true, false, false, true, false, true, false, true]);
         let m = a.gt(0.0) & a.is_finite();
         assert_eq!(m.select(a, -1.0).0, [1.0, -1.0, -1.0, 4.0, -1.0, -1.0, -1.0, 9.0]);
         assert_eq!(F8::splat(-0.5).ceil().0[0], 0.0);

@@ -88,7 +88,7 @@ fn sandwich_diag(m: &[F8; 9], d: [F8; 3]) -> [F8; 6] {
 #[inline(always)]
 fn project8(x: &Inputs, vp: &ViewParams, k_sigma: f32) -> Outputs {
     let finite = x.density.is_finite() & x.mean[0].is_finite() & x.mean[1].is_finite() & x.mean[2].is_finite();
-    let mut scale_ok = M8([true; LANES]);
+    let mut scale_ok = M8::ALL;
     let mut s = x.scale;
     for v in &mut s {
         scale_ok = scale_ok & v.is_finite() & v.gt(0.0);
@@ -207,7 +207,7 @@ pub fn project_range(
         let start = b * LANES;
         let o = project8(&load(g, first + start, out.len()), vp, k_sigma);
         for (l, slot) in out.iter_mut().enumerate() {
-            if !o.valid.0[l] {
+            if !o.valid.lane(l) {
                 *slot = None;
                 continue;
             }
