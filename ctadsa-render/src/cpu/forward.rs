@@ -1,10 +1,10 @@
 //! CPU forward pass: every pixel the exact line integral of the Gaussian mixture along its ray.
 //!
-//! Per view: project every Gaussian (parallel), bin the footprints into bands of [`BAND`] whole
-//! image rows (Gaussian order kept, so the result does not depend on the thread count), then
-//! render the bands in parallel, each Gaussian over its footprint's bounding box. Bands span the
-//! whole width so that no footprint row is cut into two pieces (each rounded up to whole
-//! [`LANES`]-pixel chunks).
+//! Per view: project every Gaussian and bin the footprints into bands of [`BAND`] whole image
+//! rows (parallel over chunks of Gaussians; Gaussian order kept, so the result does not depend
+//! on the thread count), then render the bands in parallel, each Gaussian over its footprint's
+//! bounding box. Bands span the whole width so that no footprint row is cut into two pieces
+//! (each rounded up to whole [`LANES`]-pixel chunks).
 
 use multiversion::multiversion;
 use rayon::prelude::*;
@@ -48,54 +48,61 @@ pub fn project_all(g: &HostGaussians, vp: &ViewParams, k_sigma: f32) -> (Vec<Opt
 }
 
 /// [`project_all`] into `ws.projected` and `ws.ranges`, reusing their memory (every slot is
-/// overwritten, so nothing is cleared first).
+/// overwritten, so nothing is cleared first), and each chunk's footprints binned by band into
+/// `ws.bins` (one [`BandBins`] per chunk of [`CHUNK`] Gaussians, so binning runs in parallel).
 fn project_into(g: &HostGaussians, vp: &ViewParams, k_sigma: f32, ws: &mut Workspace) {
+    let n_bands = (vp.height as i32 + BAND - 1) / BAND;
     ws.projected.resize(g.len(), None);
     ws.ranges.resize(g.len(), [1, 0]);
+    ws.bins.resize_with(g.len().div_ceil(CHUNK), BandBins::default);
     ws.projected
         .par_chunks_mut(CHUNK)
         .zip(ws.ranges.par_chunks_mut(CHUNK))
+        .zip(ws.bins.par_iter_mut())
         .enumerate()
-        .for_each(|(c, (chunk, bands))| project_chunk(g, c * CHUNK, vp, k_sigma, chunk, bands));
+        .for_each(|(c, ((chunk, ranges), bins))| {
+            project_chunk(g, c * CHUNK, vp, k_sigma, chunk, ranges);
+            bins.fill(ranges, c * CHUNK, n_bands as usize);
+        });
 }
 
-/// Gaussian indices per band, in Gaussian order: `ids[offsets[b]..offsets[b + 1]]`.
+/// Indices of the Gaussians of one chunk per band, in Gaussian order: band `b`'s are
+/// `ids[offsets[b]..offsets[b + 1]]`.
 #[derive(Default)]
-pub struct BandBins {
-    pub offsets: Vec<u32>,
-    pub ids: Vec<u32>,
+struct BandBins {
+    offsets: Vec<u32>,
+    ids: Vec<u32>,
 }
 
-/// Bins footprints by their band ranges (counting sort; deterministic).
-pub fn bin_bands(ranges: &[[u16; 2]], vp: &ViewParams) -> BandBins {
-    let mut bins = BandBins::default();
-    bin_into(ranges, vp, &mut bins, &mut Vec::new());
-    bins
-}
+impl BandBins {
+    /// Bins the footprints of Gaussians `first..first + ranges.len()` by their band ranges
+    /// (counting sort; deterministic), reusing this bin's memory.
+    fn fill(&mut self, ranges: &[[u16; 2]], first: usize, n_bands: usize) {
+        let counts = &mut self.offsets;
+        counts.clear();
+        counts.resize(n_bands + 1, 0);
+        for &[b0, b1] in ranges {
+            for b in b0..=b1 {
+                counts[b as usize + 1] += 1;
+            }
+        }
+        for b in 0..n_bands {
+            counts[b + 1] += counts[b];
+        }
+        let mut cursor = self.offsets[..n_bands].to_vec();
+        // Every slot below is written: no clearing needed.
+        self.ids.resize(self.offsets[n_bands] as usize, 0);
+        for (i, &[b0, b1]) in ranges.iter().enumerate() {
+            for b in b0..=b1 {
+                self.ids[cursor[b as usize] as usize] = (first + i) as u32;
+                cursor[b as usize] += 1;
+            }
+        }
+    }
 
-/// [`bin_bands`] into `bins`, reusing its memory and `fill`'s (scratch).
-fn bin_into(ranges: &[[u16; 2]], vp: &ViewParams, bins: &mut BandBins, fill: &mut Vec<u32>) {
-    let n_bands = ((vp.height as i32 + BAND - 1) / BAND) as usize;
-    let counts = &mut bins.offsets;
-    counts.clear();
-    counts.resize(n_bands + 1, 0);
-    for &[b0, b1] in ranges {
-        for b in b0..=b1 {
-            counts[b as usize + 1] += 1;
-        }
-    }
-    for b in 0..n_bands {
-        counts[b + 1] += counts[b];
-    }
-    fill.clear();
-    fill.extend_from_slice(&bins.offsets);
-    // Every slot below is written: no clearing needed.
-    bins.ids.resize(bins.offsets[n_bands] as usize, 0);
-    for (i, &[b0, b1]) in ranges.iter().enumerate() {
-        for b in b0..=b1 {
-            bins.ids[fill[b as usize] as usize] = i as u32;
-            fill[b as usize] += 1;
-        }
+    /// The Gaussians of band `b`.
+    fn band(&self, b: usize) -> &[u32] {
+        &self.ids[self.offsets[b] as usize..self.offsets[b + 1] as usize]
     }
 }
 
@@ -106,8 +113,8 @@ fn bin_into(ranges: &[[u16; 2]], vp: &ViewParams, bins: &mut BandBins, fill: &mu
 struct Workspace {
     projected: Vec<Option<Projected>>,
     ranges: Vec<[u16; 2]>,
-    bins: BandBins,
-    fill: Vec<u32>,
+    /// One per chunk of [`CHUNK`] Gaussians.
+    bins: Vec<BandBins>,
 }
 
 thread_local! {
@@ -256,14 +263,15 @@ pub fn render(g: &HostGaussians, views: &[ViewParams], k_sigma: f32) -> Vec<f32>
 pub fn render_view(g: &HostGaussians, vp: &ViewParams, k_sigma: f32, image: &mut [f32]) {
     let mut ws = WORKSPACE.take();
     project_into(g, vp, k_sigma, &mut ws);
-    bin_into(&ws.ranges, vp, &mut ws.bins, &mut ws.fill);
-    let (projected, bins) = (&ws.projected, &ws.bins);
     let w = vp.width as usize;
     let stride = w + LANES;
+    let (projected, bins) = (&ws.projected, &ws.bins);
     image.par_chunks_mut(BAND as usize * w).enumerate().for_each(|(b, rows)| {
-        let ids = &bins.ids[bins.offsets[b] as usize..bins.offsets[b + 1] as usize];
         let mut buf = vec![0.0f32; BAND as usize * stride];
-        render_band(projected, ids, vp, b as i32, stride, &mut buf);
+        // Chunk by chunk, so Gaussians are added in index order (thread-count independent).
+        for bins in bins {
+            render_band(projected, bins.band(b), vp, b as i32, stride, &mut buf);
+        }
         for (dst, src) in rows.chunks_mut(w).zip(buf.chunks(stride)) {
             dst.copy_from_slice(&src[..w]);
         }
