@@ -40,11 +40,11 @@ fn project_chunk(
     }
 }
 
-/// Projects all Gaussians into one view (`None` = culled), with their band ranges.
-pub fn project_all(g: &HostGaussians, vp: &ViewParams, k_sigma: f32) -> (Vec<Option<Projected>>, Vec<[u16; 2]>) {
+/// Projects all Gaussians into one view (`None` = culled).
+pub fn project_all(g: &HostGaussians, vp: &ViewParams, k_sigma: f32) -> Vec<Option<Projected>> {
     let mut ws = Workspace::default();
     project_into(g, vp, k_sigma, &mut ws);
-    (ws.projected, ws.ranges)
+    ws.projected
 }
 
 /// [`project_all`] into `ws.projected` and `ws.ranges`, reusing their memory (every slot is
@@ -72,6 +72,8 @@ fn project_into(g: &HostGaussians, vp: &ViewParams, k_sigma: f32, ws: &mut Works
 struct BandBins {
     offsets: Vec<u32>,
     ids: Vec<u32>,
+    /// Scratch: the next free slot of each band while filling.
+    cursor: Vec<u32>,
 }
 
 impl BandBins {
@@ -89,13 +91,14 @@ impl BandBins {
         for b in 0..n_bands {
             counts[b + 1] += counts[b];
         }
-        let mut cursor = self.offsets[..n_bands].to_vec();
+        self.cursor.clear();
+        self.cursor.extend_from_slice(&self.offsets[..n_bands]);
         // Every slot below is written: no clearing needed.
         self.ids.resize(self.offsets[n_bands] as usize, 0);
         for (i, &[b0, b1]) in ranges.iter().enumerate() {
             for b in b0..=b1 {
-                self.ids[cursor[b as usize] as usize] = (first + i) as u32;
-                cursor[b as usize] += 1;
+                self.ids[self.cursor[b as usize] as usize] = (first + i) as u32;
+                self.cursor[b as usize] += 1;
             }
         }
     }
@@ -288,7 +291,7 @@ fn sum_over_footprints(
 ) -> u64 {
     views
         .iter()
-        .map(|vp| project_all(g, vp, k_sigma).0.par_iter().flatten().map(|p| per_footprint(p, vp)).sum::<u64>())
+        .map(|vp| project_all(g, vp, k_sigma).par_iter().flatten().map(|p| per_footprint(p, vp)).sum::<u64>())
         .sum()
 }
 
