@@ -48,6 +48,10 @@ pub struct Intrinsics {
     pub principal_px: [f64; 2],
 }
 
+/// Largest detector side (pixels) a view may have (the CPU forward packs pixel ranges in 16
+/// bits; a 65,536² detector would already be 16 GiB per image).
+pub const MAX_DETECTOR_PX: u32 = 1 << 16;
+
 /// One cone-beam X-ray view: the source position, the camera rotation and the detector intrinsics.
 ///
 /// Invariants (checked by the constructors): the rotation is orthonormal with determinant +1,
@@ -180,9 +184,9 @@ impl ConeBeamView {
         if !(cx.is_finite() && cy.is_finite()) {
             return Err(RenderError::InvalidView("non-finite principal point".into()));
         }
-        if width == 0 || height == 0 {
+        if width == 0 || height == 0 || width > MAX_DETECTOR_PX || height > MAX_DETECTOR_PX {
             return Err(RenderError::InvalidView(format!(
-                "detector must have at least one pixel, got {width} × {height}"
+                "detector must have 1 to {MAX_DETECTOR_PX} pixels per side, got {width} × {height}"
             )));
         }
         Ok(Self { rotation, source_mm, intrinsics, width, height })

@@ -21,7 +21,7 @@ use burn::backend::Dispatch;
 use burn::tensor::{Tensor, TensorData};
 
 pub use error::RenderError;
-pub use geometry::{ConeBeamView, Intrinsics, TigreGeometry};
+pub use geometry::{ConeBeamView, Intrinsics, MAX_DETECTOR_PX, TigreGeometry};
 pub use grid::VoxelGrid;
 pub use ops::{RenderSetup, XrayBackend};
 pub use view_params::{VIEW_PARAMS_LEN, ViewParams};

@@ -8,8 +8,8 @@ use burn::tensor::{Device, Tensor, TensorData};
 use common::*;
 use ctadsa_render::reference::RefGaussian;
 use ctadsa_render::{
-    ConeBeamView, Gaussians, Intrinsics, RenderError, RenderSettings, TigreGeometry, ViewSet, VoxelGrid, render,
-    voxelize,
+    ConeBeamView, Gaussians, Intrinsics, MAX_DETECTOR_PX, RenderError, RenderSettings, TigreGeometry, ViewSet,
+    VoxelGrid, render, voxelize,
 };
 
 fn device() -> Device {
@@ -120,6 +120,10 @@ fn bad_shapes_views_and_settings_are_errors() {
     let not_rigid = glam::DMat4::from_scale(glam::DVec3::splat(2.0));
     let intr = Intrinsics { focal_px: [100.0, 100.0], principal_px: [4.0, 4.0] };
     assert!(ConeBeamView::from_world_to_camera(not_rigid, intr, 8, 8).is_err());
+    let rigid = glam::DMat4::from_translation(glam::DVec3::new(0.0, 0.0, 1000.0));
+    assert!(ConeBeamView::from_world_to_camera(rigid, intr, MAX_DETECTOR_PX, 8).is_ok());
+    let too_wide = ConeBeamView::from_world_to_camera(rigid, intr, MAX_DETECTOR_PX + 1, 8);
+    assert!(matches!(&too_wide, Err(RenderError::InvalidView(m)) if m.contains("pixels per side")), "{too_wide:?}");
     assert!(VoxelGrid::centred([0.0, 1.0, 1.0], [2, 2, 2]).is_err());
 }
 

@@ -11,7 +11,8 @@ use rayon::prelude::*;
 
 use super::host::HostGaussians;
 use super::math::{Projected, RowEval, exp_neg};
-use super::project::project_range;
+use super::project::{project_range, project_splats};
+use super::splat::Splat;
 use crate::view_params::ViewParams;
 
 /// Image rows per band.
@@ -28,34 +29,33 @@ fn project_chunk(
     first: usize,
     vp: &ViewParams,
     k_sigma: f32,
-    out: &mut [Option<Projected>],
+    out: &mut [Splat],
     bands: &mut [[u16; 2]],
 ) {
-    project_range(g, first, vp, k_sigma, out, None);
+    project_splats(g, first, vp, k_sigma, out);
     for (p, b) in out.iter().zip(bands) {
-        *b = match p {
-            Some(p) => [p.row_min, p.row_max].map(|v| (v / BAND) as u16),
-            None => [1, 0],
-        };
+        let (r0, r1) = p.row_range();
+        *b = if r0 <= r1 { [r0, r1].map(|v| (v / BAND) as u16) } else { [1, 0] };
     }
 }
 
-/// Projects all Gaussians into one view (`None` = culled).
+/// Projects all Gaussians into one view (`None` = culled), as the backward pass's records.
 pub fn project_all(g: &HostGaussians, vp: &ViewParams, k_sigma: f32) -> Vec<Option<Projected>> {
-    let mut ws = Workspace::default();
-    project_into(g, vp, k_sigma, &mut ws);
-    ws.projected
+    let mut out = vec![None; g.len()];
+    out.par_chunks_mut(CHUNK).enumerate().for_each(|(c, chunk)| project_range(g, c * CHUNK, vp, k_sigma, chunk, None));
+    out
 }
 
-/// [`project_all`] into `ws.projected` and `ws.ranges`, reusing their memory (every slot is
-/// overwritten, so nothing is cleared first), and each chunk's footprints binned by band into
-/// `ws.bins` (one [`BandBins`] per chunk of [`CHUNK`] Gaussians, so binning runs in parallel).
+/// Projects all Gaussians into `ws.splats` and their band ranges into `ws.ranges`, reusing
+/// their memory (every slot is overwritten, so nothing is cleared first), and bins each
+/// chunk's footprints by band into `ws.bins` (one [`BandBins`] per chunk of [`CHUNK`]
+/// Gaussians, so binning runs in parallel).
 fn project_into(g: &HostGaussians, vp: &ViewParams, k_sigma: f32, ws: &mut Workspace) {
     let n_bands = (vp.height as i32 + BAND - 1) / BAND;
-    ws.projected.resize(g.len(), None);
+    ws.splats.resize(g.len(), Splat::default());
     ws.ranges.resize(g.len(), [1, 0]);
     ws.bins.resize_with(g.len().div_ceil(CHUNK), BandBins::default);
-    ws.projected
+    ws.splats
         .par_chunks_mut(CHUNK)
         .zip(ws.ranges.par_chunks_mut(CHUNK))
         .zip(ws.bins.par_iter_mut())
@@ -110,11 +110,11 @@ impl BandBins {
 }
 
 /// The forward pass's per-view buffers, kept between calls on the same thread ([`WORKSPACE`]):
-/// the projections alone take ≈ 5 MB for 60,000 Gaussians, and allocating them afresh every call
+/// the projections alone take ≈ 4 MB for 60,000 Gaussians, and allocating them afresh every call
 /// cost about as much time in page faults as projecting (`perf`: ≈ 15% of the forward).
 #[derive(Default)]
 struct Workspace {
-    projected: Vec<Option<Projected>>,
+    splats: Vec<Splat>,
     ranges: Vec<[u16; 2]>,
     /// One per chunk of [`CHUNK`] Gaussians.
     bins: Vec<BandBins>,
@@ -123,7 +123,7 @@ struct Workspace {
 thread_local! {
     /// This thread's forward buffers. Taken out for a call and put back after it, so a nested
     /// call on the same thread (rayon work stealing) simply starts with empty buffers. Holds the
-    /// memory of the largest scene this thread rendered (≈ 90 bytes per Gaussian).
+    /// memory of the largest scene this thread rendered (≈ 70 bytes per Gaussian).
     static WORKSPACE: std::cell::Cell<Workspace> = std::cell::Cell::new(Workspace::default());
 }
 
@@ -131,13 +131,15 @@ thread_local! {
 const LANES: usize = 8;
 
 /// Gaussian `p`'s line integral through the pixel at column `col` of the row `re` was made for,
-/// or exactly 0 past column `last` or outside the k-σ footprint.
+/// or exactly 0 past column `last` or outside the k-σ footprint. `x_at_0` is the normalised
+/// coordinate of column 0 (`−c_x / f_x`).
 #[inline(always)]
-fn pixel(p: &Projected, vp: &ViewParams, re: &RowEval, col: f32, last: f32) -> f32 {
-    let dx = (col - p.u0) * vp.inv_fx;
+fn pixel(p: &Splat, vp: &ViewParams, re: &RowEval, col: f32, x_at_0: f32, last: f32) -> f32 {
+    let xn = col.mul_add(vp.inv_fx, x_at_0);
+    let dx = xn - p.x0;
     let alpha = re.alpha(dx);
     let quad = re.quad(dx);
-    let r2 = re.ray_len2(p.x0 + dx);
+    let r2 = re.ray_len2(xn);
     let inv_a = 1.0 / alpha;
     let value = p.amp * (r2 * inv_a).sqrt() * exp_neg(-0.5 * quad * inv_a);
     let keep = (col <= last) & p.sees(quad, alpha);
@@ -149,7 +151,7 @@ fn pixel(p: &Projected, vp: &ViewParams, re: &RowEval, col: f32, last: f32) -> f
 /// narrow footprints — most of them in vessel scenes — waste half as many lanes as with
 /// [`splat_rows`]. Same storage as [`splat_rows`].
 #[inline(always)]
-fn splat_narrow_pair(p: &Projected, vp: &ViewParams, row: i32, c0: i32, c1: i32, stride: usize, out: &mut [f32]) {
+fn splat_narrow_pair(p: &Splat, vp: &ViewParams, row: i32, c0: i32, c1: i32, stride: usize, out: &mut [f32]) {
     const HALF: usize = LANES / 2;
     let re = [p.row_eval(row, vp), p.row_eval(row + 1, vp)];
     // Each row coefficient as a lane array (first half row `row`, second half `row + 1`), so the
@@ -158,10 +160,11 @@ fn splat_narrow_pair(p: &Projected, vp: &ViewParams, row: i32, c0: i32, c1: i32,
     let lanes = |f: fn(&RowEval) -> f32| -> [f32; LANES] { std::array::from_fn(|l| f(&re[l / HALF])) };
     let (a0, a1, n0, n1, r0) = (lanes(|r| r.a0), lanes(|r| r.a1), lanes(|r| r.n0), lanes(|r| r.n1), lanes(|r| r.r0));
     let (first, last) = (c0 as f32, c1 as f32);
+    let x_at_0 = -vp.cx * vp.inv_fx;
     let mut v = [0.0f32; LANES];
     for (l, o) in v.iter_mut().enumerate() {
         let lane_re = RowEval { a0: a0[l], a1: a1[l], n0: n0[l], n1: n1[l], r0: r0[l], ..re[0] };
-        *o = pixel(p, vp, &lane_re, first + (l % HALF) as f32, last);
+        *o = pixel(p, vp, &lane_re, first + (l % HALF) as f32, x_at_0, last);
     }
     for (r, v) in v.chunks_exact(HALF).enumerate() {
         let chunk: &mut [f32; HALF] = (&mut out[r * stride..r * stride + HALF]).try_into().expect("padded buffer");
@@ -178,27 +181,20 @@ fn splat_narrow_pair(p: &Projected, vp: &ViewParams, row: i32, c0: i32, c1: i32,
 /// [`LANES`] pixels: lanes past `c1` or outside the footprint add exactly 0, so each row of
 /// `out` must extend `LANES − 1` values past `c1` (the band buffer is padded).
 #[inline(always)]
-fn splat_rows<const R: usize>(
-    p: &Projected,
-    vp: &ViewParams,
-    row: i32,
-    c0: i32,
-    c1: i32,
-    stride: usize,
-    out: &mut [f32],
-) {
+fn splat_rows<const R: usize>(p: &Splat, vp: &ViewParams, row: i32, c0: i32, c1: i32, stride: usize, out: &mut [f32]) {
     let re: [RowEval; R] = std::array::from_fn(|r| p.row_eval(row + r as i32, vp));
     let n = (c1 - c0 + 1) as usize;
     // Lane arithmetic in f32 only (no integer overflow checks in the vector loop).
     let lane_col: [f32; LANES] = std::array::from_fn(|l| l as f32);
     let last = c1 as f32;
+    let x_at_0 = -vp.cx * vp.inv_fx;
     let mut j = 0;
     while j < n {
         let first = (c0 as usize + j) as f32;
         let mut v = [[0.0f32; LANES]; R];
         for (re, v) in re.iter().zip(v.iter_mut()) {
             for (l, o) in v.iter_mut().enumerate() {
-                *o = pixel(p, vp, re, first + lane_col[l], last);
+                *o = pixel(p, vp, re, first + lane_col[l], x_at_0, last);
             }
         }
         for (r, v) in v.iter().enumerate() {
@@ -215,21 +211,14 @@ fn splat_rows<const R: usize>(
 /// Renders band `band` into `buf` ([`BAND`] rows of `stride` values, `stride ≥ width +
 /// LANES`, so that whole chunks never run past a row).
 #[multiversion(targets("x86_64+avx2+fma+sse4.1", "x86_64+sse4.1"))]
-fn render_band(
-    projected: &[Option<Projected>],
-    ids: &[u32],
-    vp: &ViewParams,
-    band: i32,
-    stride: usize,
-    buf: &mut [f32],
-) {
+fn render_band(splats: &[Splat], ids: &[u32], vp: &ViewParams, band: i32, stride: usize, buf: &mut [f32]) {
     let y_lo = band * BAND;
     let y_hi = (y_lo + BAND - 1).min(vp.height as i32 - 1);
     for &id in ids {
-        let Some(p) = &projected[id as usize] else { continue };
-        let r0 = p.row_min.max(y_lo);
-        let r1 = p.row_max.min(y_hi);
-        let (lo, hi) = (p.col_min, p.col_max);
+        let p = &splats[id as usize];
+        let (row_min, row_max) = p.row_range();
+        let (r0, r1) = (row_min.max(y_lo), row_max.min(y_hi));
+        let (lo, hi) = p.col_range();
         if lo > hi {
             continue;
         }
@@ -268,12 +257,12 @@ pub fn render_view(g: &HostGaussians, vp: &ViewParams, k_sigma: f32, image: &mut
     project_into(g, vp, k_sigma, &mut ws);
     let w = vp.width as usize;
     let stride = w + LANES;
-    let (projected, bins) = (&ws.projected, &ws.bins);
+    let (splats, bins) = (&ws.splats, &ws.bins);
     image.par_chunks_mut(BAND as usize * w).enumerate().for_each(|(b, rows)| {
         let mut buf = vec![0.0f32; BAND as usize * stride];
         // Chunk by chunk, so Gaussians are added in index order (thread-count independent).
         for bins in bins {
-            render_band(projected, bins.band(b), vp, b as i32, stride, &mut buf);
+            render_band(splats, bins.band(b), vp, b as i32, stride, &mut buf);
         }
         for (dst, src) in rows.chunks_mut(w).zip(buf.chunks(stride)) {
             dst.copy_from_slice(&src[..w]);

@@ -11,12 +11,12 @@ use std::ops::{Add, BitAnd, BitOr, Div, Mul, Neg, Not, Sub};
 pub const LANES: usize = 8;
 
 /// Eight f32 values.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct F8(pub [f32; LANES]);
 
 /// Eight booleans (one per lane), each stored as a full-width lane mask (`0` or `!0`), the form
 /// vector compares produce and blends consume (a `bool` per lane compiled to byte extractions).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct M8([u32; LANES]);
 
 impl F8 {
@@ -122,6 +122,12 @@ impl M8 {
     #[inline(always)]
     pub fn lane(self, l: usize) -> bool {
         self.0[l] != 0
+    }
+
+    /// The lanes as bit masks (`!0` set, `0` clear).
+    #[inline(always)]
+    pub fn bits(self) -> [u32; LANES] {
+        self.0
     }
 
     /// The lanes as booleans.

@@ -7,6 +7,8 @@ pub mod host;
 pub mod lanes;
 pub mod math;
 pub mod project;
+pub mod splat;
+pub mod transpose;
 pub mod voxelize;
 
 pub use backward::{HostGrads, render_backward};
