@@ -273,10 +273,9 @@ fn pack_ranges(first: F8, last: F8, valid: M8) -> F8 {
     const TWO_23: f32 = 8_388_608.0;
     let bits = |v: f32| (v + TWO_23).to_bits().wrapping_sub(TWO_23.to_bits()) & 0xffff;
     let mut out = [0.0; LANES];
-    for l in 0..LANES {
-        let mask = valid.bits()[l];
+    for (l, (out, mask)) in out.iter_mut().zip(valid.bits()).enumerate() {
         let packed = pack_range(bits(first.0[l]), bits(last.0[l]));
-        out[l] = f32::from_bits((packed & mask) | (EMPTY_RANGE & !mask));
+        *out = f32::from_bits((packed & mask) | (EMPTY_RANGE & !mask));
     }
     F8(out)
 }
