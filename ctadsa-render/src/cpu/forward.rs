@@ -123,7 +123,7 @@ struct Workspace {
 thread_local! {
     /// This thread's forward buffers. Taken out for a call and put back after it, so a nested
     /// call on the same thread (rayon work stealing) simply starts with empty buffers. Holds the
-    /// memory of the largest scene this thread rendered (≈ 70 bytes per Gaussian).
+    /// memory of the largest scene this thread rendered (≈ 75 bytes per Gaussian).
     static WORKSPACE: std::cell::Cell<Workspace> = std::cell::Cell::new(Workspace::default());
 }
 
