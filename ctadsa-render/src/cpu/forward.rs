@@ -11,8 +11,8 @@ use rayon::prelude::*;
 
 use super::host::HostGaussians;
 use super::math::{Projected, RowEval, exp_neg};
-use super::project::{project_range, project_splats};
-use super::splat::Splat;
+use super::project::project_range;
+use super::splat::{Splat, project_splats};
 use crate::view_params::ViewParams;
 
 /// Image rows per band.

@@ -1,54 +1,52 @@
 //! Projection of Gaussians into one view, eight at a time: the per-Gaussian set-up of the exact
 //! line integral (formulas in [`super::math`]) for the pixel loops, and the camera frame the
 //! backward pass needs. Written branch-free over [`F8`] lanes so that it vectorises; a lane whose
-//! Gaussian is invalid, behind the source or off the image comes out as `None`.
+//! Gaussian is invalid, behind the source or off the image comes out as `None`. The forward
+//! pass's records are written from the same batches by [`super::splat::project_splats`].
 
 use super::host::HostGaussians;
 use super::lanes::{F8, LANES, M8};
 use super::math::{Frame, Projected, SCALE_MAX_MM, SCALE_MIN_MM, SQRT_2PI};
-use super::splat::{EMPTY_RANGE, Splat, pack_range};
-use super::transpose::{self, Transpose};
 use crate::view_params::ViewParams;
-use multiversion::target::match_target;
 
 /// One batch of inputs: means (mm, world), scales (mm), quaternions (`w, x, y, z`) and densities.
-struct Inputs {
-    mean: [F8; 3],
-    scale: [F8; 3],
-    quat: [F8; 4],
-    density: F8,
+pub(super) struct Inputs {
+    pub(super) mean: [F8; 3],
+    pub(super) scale: [F8; 3],
+    pub(super) quat: [F8; 4],
+    pub(super) density: F8,
 }
 
 /// One batch of outputs, lane-wise.
 #[derive(Default)]
-struct Outputs {
-    u0: F8,
-    v0: F8,
-    x0: F8,
-    y0: F8,
-    mu: [F8; 3],
-    q: [F8; 6],
-    m: [F8; 9],
-    g_x: F8,
-    g_y: F8,
-    alpha_w: F8,
-    c_xx: F8,
-    c_xy: F8,
-    c_yy: F8,
-    amp: F8,
-    cut: F8,
+pub(super) struct Outputs {
+    pub(super) u0: F8,
+    pub(super) v0: F8,
+    pub(super) x0: F8,
+    pub(super) y0: F8,
+    pub(super) mu: [F8; 3],
+    pub(super) q: [F8; 6],
+    pub(super) m: [F8; 9],
+    pub(super) g_x: F8,
+    pub(super) g_y: F8,
+    pub(super) alpha_w: F8,
+    pub(super) c_xx: F8,
+    pub(super) c_xy: F8,
+    pub(super) c_yy: F8,
+    pub(super) amp: F8,
+    pub(super) cut: F8,
     /// Clipped inclusive pixel box (whole numbers).
-    col_min: F8,
-    col_max: F8,
-    row_min: F8,
-    row_max: F8,
-    valid: M8,
+    pub(super) col_min: F8,
+    pub(super) col_max: F8,
+    pub(super) row_min: F8,
+    pub(super) row_max: F8,
+    pub(super) valid: M8,
 }
 
 /// Loads Gaussians `first..first + count` (`count ≤ LANES`); missing lanes get a zero
 /// quaternion, which makes them invalid.
 #[inline(always)]
-fn load(g: &HostGaussians, first: usize, count: usize) -> Inputs {
+pub(super) fn load(g: &HostGaussians, first: usize, count: usize) -> Inputs {
     let mut x = Inputs {
         mean: [F8::splat(0.0); 3],
         scale: [F8::splat(1.0); 3],
@@ -67,17 +65,6 @@ fn load(g: &HostGaussians, first: usize, count: usize) -> Inputs {
         x.density.0[l] = d;
     }
     x
-}
-
-/// Loads Gaussians `first..first + LANES` (all present) with the block transposes of `T`.
-#[inline(always)]
-fn load_full<T: Transpose>(g: &HostGaussians, first: usize) -> Inputs {
-    let block3 = |a: &[f32]| -> [F8; 3] {
-        T::columns3(a[3 * first..3 * (first + LANES)].try_into().expect("a whole batch")).map(F8)
-    };
-    let quat = T::columns4(g.rotations[4 * first..4 * (first + LANES)].try_into().expect("a whole batch"));
-    let density: [f32; LANES] = g.densities[first..first + LANES].try_into().expect("a whole batch");
-    Inputs { mean: block3(g.means), scale: block3(g.scales), quat: quat.map(F8), density: F8(density) }
 }
 
 /// Entry `(i, j)` of `M diag(d) Mᵀ`.
@@ -101,7 +88,7 @@ fn sandwich_diag(m: &[F8; 9], d: [F8; 3]) -> [F8; 6] {
 
 /// The projection of one batch (see [`super::math`] for the formulas).
 #[inline(always)]
-fn project8(x: &Inputs, vp: &ViewParams, k_sigma: f32) -> Outputs {
+pub(super) fn project8(x: &Inputs, vp: &ViewParams, k_sigma: f32) -> Outputs {
     let finite = x.density.is_finite() & x.mean[0].is_finite() & x.mean[1].is_finite() & x.mean[2].is_finite();
     let mut scale_ok = M8::ALL;
     let mut s = x.scale;
@@ -264,113 +251,10 @@ pub fn project_range(
     }
 }
 
-/// Packs the box ranges of a batch (lanes whose Gaussian is culled get [`EMPTY_RANGE`]).
-#[inline(always)]
-fn pack_ranges(first: F8, last: F8, valid: M8) -> F8 {
-    // Whole numbers in [0, 2¹⁶) (clipped to the image): adding 2²³ puts them in the low
-    // mantissa bits, a conversion that vectorises (`as u32` saturates lane by lane). Culled
-    // lanes may hold anything (even NaN): wrapping, and masked out below.
-    const TWO_23: f32 = 8_388_608.0;
-    let bits = |v: f32| (v + TWO_23).to_bits().wrapping_sub(TWO_23.to_bits()) & 0xffff;
-    let mut out = [0.0; LANES];
-    for (l, (out, mask)) in out.iter_mut().zip(valid.bits()).enumerate() {
-        let packed = pack_range(bits(first.0[l]), bits(last.0[l]));
-        *out = f32::from_bits((packed & mask) | (EMPTY_RANGE & !mask));
-    }
-    F8(out)
-}
-
-/// The fields of a batch's [`Splat`] records, one lane array per field in record order.
-type SplatFields = [[f32; LANES]; 16];
-
-/// Loads and projects Gaussians `start..start + count` (`count ≤ LANES`) and packs their
-/// [`Splat`] fields.
-#[inline(always)]
-fn splat_fields<T: Transpose>(
-    g: &HostGaussians,
-    start: usize,
-    count: usize,
-    vp: &ViewParams,
-    k_sigma: f32,
-    fields: &mut SplatFields,
-) {
-    let x = if count == LANES { load_full::<T>(g, start) } else { load(g, start, count) };
-    let o = project8(&x, vp, k_sigma);
-    let cols = pack_ranges(o.col_min, o.col_max, o.valid);
-    let rows = pack_ranges(o.row_min, o.row_max, o.valid);
-    let order = [
-        o.x0,
-        o.y0,
-        o.q[0],
-        o.q[1],
-        o.q[3],
-        o.g_x,
-        o.g_y,
-        o.alpha_w,
-        o.c_xx,
-        o.c_xy,
-        o.c_yy,
-        o.amp,
-        o.cut,
-        cols,
-        rows,
-        F8::splat(0.0),
-    ];
-    for (field, v) in fields.iter_mut().zip(order) {
-        *field = v.0;
-    }
-}
-
-/// Projects Gaussians `first..first + out.len()` of `g` into view `vp` with a k-σ footprint,
-/// as the forward pass's [`Splat`] records (culled Gaussians, as in [`project_range`], get
-/// empty ranges). The view's sides must be at most [`MAX_SIDE_PX`](super::splat::MAX_SIDE_PX).
-#[multiversion::multiversion(targets("x86_64+avx2+fma+sse4.1", "x86_64+sse4.1"))]
-pub fn project_splats(g: &HostGaussians, first: usize, vp: &ViewParams, k_sigma: f32, out: &mut [Splat]) {
-    /// Loads and maths, out of line: inlined together with the record stores, LLVM vectorised
-    /// much of the maths four lanes (or three components) at a time instead of eight.
-    #[multiversion::inherit_target]
-    #[inline(never)]
-    fn batch<T: Transpose>(
-        g: &HostGaussians,
-        start: usize,
-        count: usize,
-        vp: &ViewParams,
-        k_sigma: f32,
-        fields: &mut SplatFields,
-    ) {
-        splat_fields::<T>(g, start, count, vp, k_sigma, fields);
-    }
-    match_target! {
-        "x86_64+avx2" => store_splats::<transpose::Avx2>(g, first, vp, k_sigma, out, batch::<transpose::Avx2>),
-        _ => store_splats::<transpose::Plain>(g, first, vp, k_sigma, out, batch::<transpose::Plain>),
-    }
-}
-
-/// The batch loop of [`project_splats`]: `batch` fills the fields, `T` transposes them into
-/// records.
-#[inline(always)]
-fn store_splats<T: Transpose>(
-    g: &HostGaussians,
-    first: usize,
-    vp: &ViewParams,
-    k_sigma: f32,
-    out: &mut [Splat],
-    batch: fn(&HostGaussians, usize, usize, &ViewParams, f32, &mut SplatFields),
-) {
-    let mut fields = [[0.0; LANES]; 16];
-    for (b, out) in out.chunks_mut(LANES).enumerate() {
-        batch(g, first + b * LANES, out.len(), vp, k_sigma, &mut fields);
-        let lo = T::transpose8(fields[..8].try_into().expect("8 fields"));
-        let hi = T::transpose8(fields[8..].try_into().expect("8 fields"));
-        for (l, splat) in out.iter_mut().enumerate() {
-            *splat = bytemuck::cast([lo[l], hi[l]]);
-        }
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::cpu::splat::{EMPTY_RANGE, Splat, pack_range, project_splats};
     use crate::geometry::{ConeBeamView, TigreGeometry};
 
     /// 21 Gaussians (not a multiple of the lane count), every fourth one invalid in a different
@@ -427,7 +311,8 @@ mod tests {
     }
 
     /// The forward's records hold the same numbers as the backward's, for whole batches and
-    /// the last partial one, with the dispatched (AVX2 here) and the plain moves.
+    /// the last partial one (AVX2 moves on this CPU; `transpose.rs` checks them against plain
+    /// loops).
     #[test]
     fn splats_equal_projections() {
         let ([means, scales, rotations, densities], vp) = scene();
@@ -437,16 +322,6 @@ mod tests {
         project_range(&g, 0, &vp, 3.0, &mut projected, None);
         let mut dispatched = vec![Splat::default(); n];
         project_splats(&g, 0, &vp, 3.0, &mut dispatched);
-        let mut plain = vec![Splat::default(); n];
-        fn plain_batch(g: &HostGaussians, s: usize, c: usize, vp: &ViewParams, k: f32, f: &mut SplatFields) {
-            splat_fields::<transpose::Plain>(g, s, c, vp, k, f);
-        }
-        store_splats::<transpose::Plain>(&g, 0, &vp, 3.0, &mut plain, plain_batch);
-        for (i, (d, p)) in dispatched.iter().zip(&plain).enumerate() {
-            // Culled records may hold NaNs (with either sign): only their ranges count.
-            let culled = (d.cols, d.rows) == (EMPTY_RANGE, EMPTY_RANGE);
-            assert!(culled && (p.cols, p.rows) == (d.cols, d.rows) || d == p, "Gaussian {i}: {d:?} {p:?}");
-        }
         for (i, (s, p)) in dispatched.iter().zip(&projected).enumerate() {
             let Some(p) = p else {
                 assert!(INVALID.contains(&i), "Gaussian {i} culled");

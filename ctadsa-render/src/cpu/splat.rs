@@ -1,13 +1,18 @@
 //! The forward pass's record of one Gaussian in one view: what its pixel loop reads, in one
-//! 64-byte cache line (written eight at a time by [`super::project::project_splats`]).
+//! 64-byte cache line, and [`project_splats`], which writes them eight at a time.
 //!
 //! Unlike [`Projected`](super::math::Projected) (the backward's record) it keeps no pixel
 //! coordinates of the centre: a pixel's normalised coordinates `(x, y)` come from the pixel
 //! alone, and the offsets from the centre are `dx = x − x0`, `dy = y − y0`.
 
 use bytemuck::{Pod, Zeroable};
+use multiversion::target::match_target;
 
+use super::host::HostGaussians;
+use super::lanes::{F8, LANES, M8};
 use super::math::RowEval;
+use super::project::{Inputs, load, project8};
+use super::transpose::{self, Transpose};
 use crate::view_params::ViewParams;
 
 /// One Gaussian in one view for the forward pixel loop (see [`super::math`] for the symbols).
@@ -97,6 +102,121 @@ impl Splat {
             n1: 2.0 * self.c_xy * dy,
             n2: self.c_xx,
             r0: yn.mul_add(yn, 1.0),
+        }
+    }
+}
+
+/// Loads Gaussians `first..first + LANES` (all present) with the block transposes of `T`.
+#[inline(always)]
+fn load_full<T: Transpose>(g: &HostGaussians, first: usize) -> Inputs {
+    let block3 = |a: &[f32]| -> [F8; 3] {
+        T::columns3(a[3 * first..3 * (first + LANES)].try_into().expect("a whole batch")).map(F8)
+    };
+    let quat = T::columns4(g.rotations[4 * first..4 * (first + LANES)].try_into().expect("a whole batch"));
+    let density: [f32; LANES] = g.densities[first..first + LANES].try_into().expect("a whole batch");
+    Inputs { mean: block3(g.means), scale: block3(g.scales), quat: quat.map(F8), density: F8(density) }
+}
+
+/// Packs the box ranges of a batch (lanes whose Gaussian is culled get [`EMPTY_RANGE`]).
+#[inline(always)]
+fn pack_ranges(first: F8, last: F8, valid: M8) -> F8 {
+    // Whole numbers in [0, 2¹⁶) (clipped to the image): adding 2²³ puts them in the low
+    // mantissa bits, a conversion that vectorises (`as u32` saturates lane by lane). Culled
+    // lanes may hold anything (even NaN): wrapping, and masked out below.
+    const TWO_23: f32 = 8_388_608.0;
+    let bits = |v: f32| (v + TWO_23).to_bits().wrapping_sub(TWO_23.to_bits()) & 0xffff;
+    let mut out = [0.0; LANES];
+    for (l, (out, mask)) in out.iter_mut().zip(valid.bits()).enumerate() {
+        let packed = pack_range(bits(first.0[l]), bits(last.0[l]));
+        *out = f32::from_bits((packed & mask) | (EMPTY_RANGE & !mask));
+    }
+    F8(out)
+}
+
+/// The fields of a batch's [`Splat`] records, one lane array per field in record order.
+type SplatFields = [[f32; LANES]; 16];
+
+/// Loads and projects Gaussians `start..start + count` (`count ≤ LANES`) and packs their
+/// [`Splat`] fields.
+#[inline(always)]
+fn splat_fields<T: Transpose>(
+    g: &HostGaussians,
+    start: usize,
+    count: usize,
+    vp: &ViewParams,
+    k_sigma: f32,
+    fields: &mut SplatFields,
+) {
+    let x = if count == LANES { load_full::<T>(g, start) } else { load(g, start, count) };
+    let o = project8(&x, vp, k_sigma);
+    let cols = pack_ranges(o.col_min, o.col_max, o.valid);
+    let rows = pack_ranges(o.row_min, o.row_max, o.valid);
+    let order = [
+        o.x0,
+        o.y0,
+        o.q[0],
+        o.q[1],
+        o.q[3],
+        o.g_x,
+        o.g_y,
+        o.alpha_w,
+        o.c_xx,
+        o.c_xy,
+        o.c_yy,
+        o.amp,
+        o.cut,
+        cols,
+        rows,
+        F8::splat(0.0),
+    ];
+    for (field, v) in fields.iter_mut().zip(order) {
+        *field = v.0;
+    }
+}
+
+/// Projects Gaussians `first..first + out.len()` of `g` into view `vp` with a k-σ footprint,
+/// as the forward pass's [`Splat`] records (culled Gaussians, as in [`project_range`](super::project::project_range), get
+/// empty ranges). The view's sides must be at most [`MAX_SIDE_PX`](super::splat::MAX_SIDE_PX).
+#[multiversion::multiversion(targets("x86_64+avx2+fma+sse4.1", "x86_64+sse4.1"))]
+pub fn project_splats(g: &HostGaussians, first: usize, vp: &ViewParams, k_sigma: f32, out: &mut [Splat]) {
+    /// Loads and maths, out of line: inlined together with the record stores, LLVM vectorised
+    /// much of the maths four lanes (or three components) at a time instead of eight.
+    #[multiversion::inherit_target]
+    #[inline(never)]
+    fn batch<T: Transpose>(
+        g: &HostGaussians,
+        start: usize,
+        count: usize,
+        vp: &ViewParams,
+        k_sigma: f32,
+        fields: &mut SplatFields,
+    ) {
+        splat_fields::<T>(g, start, count, vp, k_sigma, fields);
+    }
+    match_target! {
+        "x86_64+avx2" => store_splats::<transpose::Avx2>(g, first, vp, k_sigma, out, batch::<transpose::Avx2>),
+        _ => store_splats::<transpose::Plain>(g, first, vp, k_sigma, out, batch::<transpose::Plain>),
+    }
+}
+
+/// The batch loop of [`project_splats`]: `batch` fills the fields, `T` transposes them into
+/// records.
+#[inline(always)]
+fn store_splats<T: Transpose>(
+    g: &HostGaussians,
+    first: usize,
+    vp: &ViewParams,
+    k_sigma: f32,
+    out: &mut [Splat],
+    batch: fn(&HostGaussians, usize, usize, &ViewParams, f32, &mut SplatFields),
+) {
+    let mut fields = [[0.0; LANES]; 16];
+    for (b, out) in out.chunks_mut(LANES).enumerate() {
+        batch(g, first + b * LANES, out.len(), vp, k_sigma, &mut fields);
+        let lo = T::transpose8(fields[..8].try_into().expect("8 fields"));
+        let hi = T::transpose8(fields[8..].try_into().expect("8 fields"));
+        for (l, splat) in out.iter_mut().enumerate() {
+            *splat = bytemuck::cast([lo[l], hi[l]]);
         }
     }
 }
