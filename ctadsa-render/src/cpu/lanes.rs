@@ -11,12 +11,12 @@ use std::ops::{Add, BitAnd, BitOr, Div, Mul, Neg, Not, Sub};
 pub const LANES: usize = 8;
 
 /// Eight f32 values.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct F8(pub [f32; LANES]);
 
 /// Eight booleans (one per lane), each stored as a full-width lane mask (`0` or `!0`), the form
 /// vector compares produce and blends consume (a `bool` per lane compiled to byte extractions).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct M8([u32; LANES]);
 
 impl F8 {

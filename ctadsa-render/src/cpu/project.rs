@@ -18,7 +18,6 @@ pub(super) struct Inputs {
 }
 
 /// One batch of outputs, lane-wise.
-#[derive(Default)]
 pub(super) struct Outputs {
     pub(super) u0: F8,
     pub(super) v0: F8,

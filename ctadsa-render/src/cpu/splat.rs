@@ -42,6 +42,7 @@ pub struct Splat {
     pub cols: u32,
     /// Inclusive row range, packed by [`pack_range`].
     pub rows: u32,
+    /// Unused: pads the record to 16 words.
     pub padding: u32,
 }
 
@@ -175,8 +176,9 @@ fn splat_fields<T: Transpose>(
 }
 
 /// Projects Gaussians `first..first + out.len()` of `g` into view `vp` with a k-σ footprint,
-/// as the forward pass's [`Splat`] records (culled Gaussians, as in [`project_range`](super::project::project_range), get
-/// empty ranges). The view's sides must be at most [`MAX_SIDE_PX`](super::splat::MAX_SIDE_PX).
+/// as the forward pass's [`Splat`] records (culled Gaussians, as in
+/// [`project_range`](super::project::project_range), get empty ranges). The view's sides must
+/// be at most [`MAX_SIDE_PX`].
 #[multiversion::multiversion(targets("x86_64+avx2+fma+sse4.1", "x86_64+sse4.1"))]
 pub fn project_splats(g: &HostGaussians, first: usize, vp: &ViewParams, k_sigma: f32, out: &mut [Splat]) {
     /// Loads and maths, out of line: inlined together with the record stores, LLVM vectorised
