@@ -251,15 +251,14 @@ pub fn project_range(
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
-    use crate::cpu::splat::{EMPTY_RANGE, Splat, pack_range, project_splats};
     use crate::geometry::{ConeBeamView, TigreGeometry};
 
     /// 21 Gaussians (not a multiple of the lane count), every fourth one invalid in a different
     /// way (3: non-finite mean, 7: zero scale, 11: zero quaternion, 15: behind the source), as
     /// `[means, scales, rotations, densities]`, and a view of 64 × 64 px.
-    fn scene() -> ([Vec<f32>; 4], ViewParams) {
+    pub(in crate::cpu) fn scene() -> ([Vec<f32>; 4], ViewParams) {
         let view = ConeBeamView::from_tigre(&TigreGeometry {
             detector_px: [64, 64],
             pixel_mm: [4.0, 4.0],
@@ -285,7 +284,8 @@ mod tests {
         ([means, scales, rotations, densities], ViewParams::new(&view))
     }
 
-    const INVALID: [usize; 4] = [3, 7, 11, 15];
+    /// The culled Gaussians of [`scene`].
+    pub(in crate::cpu) const INVALID: [usize; 4] = [3, 7, 11, 15];
 
     /// Projected as one range and one at a time: the same results, lane by lane.
     #[test]
@@ -306,46 +306,6 @@ mod tests {
                 assert_eq!(format!("{a:?}"), format!("{b:?}"), "Gaussian {i}");
                 assert_eq!(format!("{:?}", frames[i]), format!("{:?}", frame[0]), "Gaussian {i}");
             }
-        }
-    }
-
-    /// The forward's records hold the same numbers as the backward's, for whole batches and
-    /// the last partial one (AVX2 moves on this CPU; `transpose.rs` checks them against plain
-    /// loops).
-    #[test]
-    fn splats_equal_projections() {
-        let ([means, scales, rotations, densities], vp) = scene();
-        let n = densities.len();
-        let g = HostGaussians { means: &means, scales: &scales, rotations: &rotations, densities: &densities };
-        let mut projected = vec![None; n];
-        project_range(&g, 0, &vp, 3.0, &mut projected, None);
-        let mut dispatched = vec![Splat::default(); n];
-        project_splats(&g, 0, &vp, 3.0, &mut dispatched);
-        for (i, (s, p)) in dispatched.iter().zip(&projected).enumerate() {
-            let Some(p) = p else {
-                assert!(INVALID.contains(&i), "Gaussian {i} culled");
-                assert_eq!((s.cols, s.rows), (EMPTY_RANGE, EMPTY_RANGE), "Gaussian {i}");
-                continue;
-            };
-            let expect = Splat {
-                x0: p.x0,
-                y0: p.y0,
-                q_xx: p.q_xx,
-                q_xy: p.q_xy,
-                q_yy: p.q_yy,
-                g_x: p.g_x,
-                g_y: p.g_y,
-                alpha_w: p.alpha_w,
-                c_xx: p.c_xx,
-                c_xy: p.c_xy,
-                c_yy: p.c_yy,
-                amp: p.amp,
-                cut: p.cut,
-                cols: pack_range(p.col_min as u32, p.col_max as u32),
-                rows: pack_range(p.row_min as u32, p.row_max as u32),
-                padding: 0,
-            };
-            assert_eq!(*s, expect, "Gaussian {i}");
         }
     }
 }

@@ -226,6 +226,8 @@ fn store_splats<T: Transpose>(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::cpu::project::project_range;
+    use crate::cpu::project::tests::{INVALID, scene};
 
     #[test]
     fn record_is_one_cache_line_and_ranges_round_trip() {
@@ -235,5 +237,51 @@ mod tests {
         assert_eq!(s.col_range(), (3, MAX_SIDE_PX as i32 - 1));
         let (first, last) = s.row_range();
         assert!(first > last, "the empty range is empty");
+    }
+
+    /// The forward's records hold the same numbers as the backward's, for whole batches and
+    /// the last partial one, with the dispatched moves (AVX2 on this CPU) and the plain ones
+    /// (what CPUs without AVX2 run).
+    #[test]
+    fn splats_equal_projections() {
+        let ([means, scales, rotations, densities], vp) = scene();
+        let n = densities.len();
+        let g = HostGaussians { means: &means, scales: &scales, rotations: &rotations, densities: &densities };
+        let mut projected = vec![None; n];
+        project_range(&g, 0, &vp, 3.0, &mut projected, None);
+        let mut dispatched = vec![Splat::default(); n];
+        project_splats(&g, 0, &vp, 3.0, &mut dispatched);
+        fn plain_batch(g: &HostGaussians, s: usize, c: usize, vp: &ViewParams, k: f32, f: &mut SplatFields) {
+            splat_fields::<transpose::Plain>(g, s, c, vp, k, f);
+        }
+        let mut plain = vec![Splat::default(); n];
+        store_splats::<transpose::Plain>(&g, 0, &vp, 3.0, &mut plain, plain_batch);
+        for (i, (s, p)) in dispatched.iter().chain(&plain).zip(projected.iter().cycle()).enumerate() {
+            let i = i % n;
+            let Some(p) = p else {
+                assert!(INVALID.contains(&i), "Gaussian {i} culled");
+                assert_eq!((s.cols, s.rows), (EMPTY_RANGE, EMPTY_RANGE), "Gaussian {i}");
+                continue;
+            };
+            let expect = Splat {
+                x0: p.x0,
+                y0: p.y0,
+                q_xx: p.q_xx,
+                q_xy: p.q_xy,
+                q_yy: p.q_yy,
+                g_x: p.g_x,
+                g_y: p.g_y,
+                alpha_w: p.alpha_w,
+                c_xx: p.c_xx,
+                c_xy: p.c_xy,
+                c_yy: p.c_yy,
+                amp: p.amp,
+                cut: p.cut,
+                cols: pack_range(p.col_min as u32, p.col_max as u32),
+                rows: pack_range(p.row_min as u32, p.row_max as u32),
+                padding: 0,
+            };
+            assert_eq!(*s, expect, "Gaussian {i}");
+        }
     }
 }
