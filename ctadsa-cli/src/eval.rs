@@ -6,7 +6,9 @@ use std::path::PathBuf;
 use anyhow::{Context, Result};
 use clap::Args;
 use ctadsa_core::eval::{EvalOptions, EvalReport, evaluate_files};
-use ctadsa_core::metrics::SurfaceScores;
+use ctadsa_core::metrics::{RegionScores, SurfaceScores};
+use ctadsa_core::tree::prior::split_by_diameter;
+use ctadsa_core::tree::swc::read_swc;
 
 #[derive(Args)]
 pub struct EvalArgs {
@@ -28,9 +30,16 @@ pub struct EvalArgs {
     /// Sampling seed.
     #[arg(long, default_value_t = 1234)]
     seed: u64,
-    /// Use mesh vertices instead of area-uniform samples.
+    /// Paper column: area-uniform samples instead of mesh vertices.
     #[arg(long)]
-    vertices: bool,
+    paper_samples: bool,
+    /// The true centreline tree (SWC, world mm, e.g. a case's gt/tree.swc); with
+    /// --prior-diameter gives the recall of the missing vessels.
+    #[arg(long, requires = "prior_diameter")]
+    tree: Option<PathBuf>,
+    /// Vessels thinner than this (mm) are the missing ones (the case's prior threshold).
+    #[arg(long, requires = "tree")]
+    prior_diameter: Option<f64>,
     /// Rigidly align the prediction to the ground truth by ICP first (reference parity).
     #[arg(long)]
     icp: bool,
@@ -49,19 +58,34 @@ fn row(region: &str, s: &SurfaceScores) {
     );
 }
 
-/// Prints a report as a Markdown table.
-pub fn print_report(r: &EvalReport) {
+fn table(title: &str, r: &RegionScores) {
+    println!("{title}\n");
     println!(
         "| region | CD mean (mm) | CD sum (mm) | HD95 (mm) | HD max (mm) | pred→gt (mm) | gt→pred (mm) | points pred / gt |"
     );
     println!("|---|---:|---:|---:|---:|---:|---:|---:|");
-    row("overall", &r.scores.overall);
-    if let Some(s) = &r.scores.roi {
+    row("overall", &r.overall);
+    if let Some(s) = &r.roi {
         row("ROI (missing vessels)", s);
     }
-    if let Some(s) = &r.scores.prior {
+    if let Some(s) = &r.prior {
         row("prior region", s);
     }
+}
+
+/// Prints a report as Markdown tables: exact distances, coverage, the paper's convention.
+pub fn print_report(r: &EvalReport) {
+    table("Exact point-to-surface distances (samples on each surface):", &r.scores);
+    let c = &r.coverage;
+    let pct = |v: Option<f64>| v.map_or("—".to_string(), |v| format!("{:.1} %", 100.0 * v));
+    println!(
+        "\nfalse surface (> 2 mm from every true vessel): {}; missing surface within 1 mm: {}; missing-vessel recall (centreline within radius + 0.5 mm): {}\n",
+        pct(Some(c.false_surface)),
+        pct(c.missing_surface_within_1mm),
+        pct(c.missing_recall)
+    );
+    let what = if r.options.paper_samples { "area samples" } else { "mesh vertices" };
+    table(&format!("Paper convention (nearest points between {what}):"), &r.paper);
     if let (Some(m), Some(t)) = (r.icp_mean_mm, r.icp_translation_mm) {
         println!(
             "\nICP: mean distance after alignment {m:.3} mm, translation [{:.3}, {:.3}, {:.3}] mm",
@@ -71,11 +95,10 @@ pub fn print_report(r: &EvalReport) {
 }
 
 pub fn run(args: EvalArgs) -> Result<()> {
-    anyhow::ensure!(args.samples >= 1 || args.vertices, "--samples must be ≥ 1");
     let options = EvalOptions {
         samples: args.samples,
         seed: args.seed,
-        vertices: args.vertices,
+        paper_samples: args.paper_samples,
         icp: args.icp,
         min_island_mm2: args.min_island_mm2,
     };
@@ -83,7 +106,14 @@ pub fn run(args: EvalArgs) -> Result<()> {
         (Some(p), Some(m)) => Some((p.as_path(), m.as_path())),
         _ => None,
     };
-    let report = evaluate_files(&args.pred, &args.gt, split, &options)?;
+    let missing = match (&args.tree, args.prior_diameter) {
+        (Some(tree), Some(d)) => {
+            anyhow::ensure!(d.is_finite() && d >= 0.0, "--prior-diameter must be ≥ 0 mm, got {d}");
+            Some(split_by_diameter(&read_swc(tree)?.tree, d).missing)
+        }
+        _ => None,
+    };
+    let report = evaluate_files(&args.pred, &args.gt, split, missing.as_deref(), &options)?;
     print_report(&report);
     let json = serde_json::to_string_pretty(&report)?;
     match &args.json {

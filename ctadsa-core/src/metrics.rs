@@ -74,23 +74,26 @@ pub struct SurfaceScores {
 pub fn compare(pred: &[DVec3], gt: &[DVec3]) -> SurfaceScores {
     let a = nearest_distances(pred, gt);
     let b = nearest_distances(gt, pred);
-    let (ma, mb) = (mean(&a), mean(&b));
-    let (ma, mb) = if pred.is_empty() && !gt.is_empty() { (f64::INFINITY, f64::INFINITY) } else { (ma, mb) };
+    scores_from_distances(&a, &b)
+}
+
+/// Scores from the one-sided distances `pred_to_gt` (one per predicted point) and `gt_to_pred`
+/// (one per true point). An empty prediction against a non-empty truth is infinitely far.
+pub fn scores_from_distances(pred_to_gt: &[f64], gt_to_pred: &[f64]) -> SurfaceScores {
+    let (a, b) = (pred_to_gt, gt_to_pred);
+    let missed = a.is_empty() && !b.is_empty();
+    let (ma, mb) = if missed { (f64::INFINITY, f64::INFINITY) } else { (mean(a), mean(b)) };
     let max = |v: &[f64]| v.iter().copied().fold(f64::NAN, f64::max);
-    let (pa, pb) = if pred.is_empty() && !gt.is_empty() {
-        (f64::INFINITY, f64::INFINITY)
-    } else {
-        (percentile(&a, 95.0), percentile(&b, 95.0))
-    };
+    let (pa, pb) = if missed { (f64::INFINITY, f64::INFINITY) } else { (percentile(a, 95.0), percentile(b, 95.0)) };
     SurfaceScores {
         cd_mean_mm: 0.5 * (ma + mb),
         cd_sum_mm: ma + mb,
-        hd_mm: max(&a).max(max(&b)),
+        hd_mm: if missed { f64::INFINITY } else { max(a).max(max(b)) },
         hd95_mm: pa.max(pb),
         pred_to_gt_mm: ma,
         gt_to_pred_mm: mb,
-        pred_points: pred.len(),
-        gt_points: gt.len(),
+        pred_points: a.len(),
+        gt_points: b.len(),
     }
 }
 
