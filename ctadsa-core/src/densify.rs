@@ -273,7 +273,7 @@ mod tests {
             hidden_layers: 1,
             ..FieldConfig::default()
         };
-        let field = GaussianModel::new_field(&small, [0.0; 3], [10.0; 3], 1.0, &device);
+        let field = GaussianModel::new_field(&small, [0.0; 3], [10.0; 3], 1.0, 3, &device);
         let model = GaussianModel::new(&init, field, ScaleBounds::from_voxel(0.5, 0.1, 10.0), &device);
         let mut optim = AdamConfig::new().init();
         // Two steps with a loss that gives every row a different gradient.

@@ -25,7 +25,7 @@ fn points(n: usize, device: &Device) -> Tensor<2> {
 }
 
 fn grid(device: &Device) -> HashGrid {
-    let mut g = HashGrid::new(config(), device);
+    let mut g = HashGrid::new(config(), 11, device);
     // Larger values than the ±1e-4 initialisation so that errors would show.
     let [f, r] = g.tables.val().dims();
     g.tables = burn::module::Param::from_tensor(Tensor::random([f, r], Distribution::Uniform(-1.0, 1.0), device));

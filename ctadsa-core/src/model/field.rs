@@ -8,6 +8,8 @@ use burn::tensor::{Device, Tensor, TensorData};
 use serde::{Deserialize, Serialize};
 
 use super::hash_grid::{HashGrid, HashGridConfig};
+use super::uniform_tensor;
+use burn::module::Param;
 
 /// The MLP's output non-linearity (both non-negative).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -58,22 +60,34 @@ pub struct OpacityField {
 
 impl OpacityField {
     /// A new field over the box `[min_mm, min_mm + size_mm]`; the output bias starts at
-    /// `initial_density` (through the inverse of the output activation).
+    /// `initial_density` (through the inverse of the output activation). Random weights come
+    /// from `seed`: the hash tables uniform in ±1e-4, the linear layers uniform in
+    /// ±1/√fan_in (burn's default Kaiming-uniform bound), drawn on the host.
     pub fn new(
         config: &FieldConfig,
         min_mm: [f32; 3],
         size_mm: [f32; 3],
         initial_density: f32,
+        seed: u64,
         device: &Device,
     ) -> Self {
-        let grid = HashGrid::new(config.encoding, device);
+        let grid = HashGrid::new(config.encoding, seed, device);
+        let linear = |fan_in: usize, fan_out: usize, k: u64| {
+            let mut l = LinearConfig::new(fan_in, fan_out).init(device);
+            let bound = 1.0 / (fan_in as f64).sqrt();
+            let s = seed ^ (k + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+            l.weight = Param::from_tensor(uniform_tensor([fan_in, fan_out], bound, s, device));
+            let b = uniform_tensor([1, fan_out], bound, s ^ 0xB1A5, device).reshape([fan_out]);
+            l.bias = Some(Param::from_tensor(b));
+            l
+        };
         let mut hidden = Vec::new();
         let mut width = config.encoding.output_dim();
-        for _ in 0..config.hidden_layers {
-            hidden.push(LinearConfig::new(width, config.hidden).init(device));
+        for k in 0..config.hidden_layers {
+            hidden.push(linear(width, config.hidden, k as u64));
             width = config.hidden;
         }
-        let mut output = LinearConfig::new(width, 1).init(device);
+        let mut output = linear(width, 1, config.hidden_layers as u64);
         let bias = match config.output {
             OutputActivation::Relu => initial_density,
             OutputActivation::Softplus => {

@@ -9,7 +9,7 @@
 //! trilinear weights).
 
 use burn::module::{Module, Param};
-use burn::tensor::{Device, Distribution, Int, Tensor, TensorData};
+use burn::tensor::{Device, Int, Tensor, TensorData};
 use serde::{Deserialize, Serialize};
 
 /// Hash multipliers, below 2¹⁹ so that `coordinate × P` fits in i32 for resolutions < 2¹².
@@ -87,10 +87,11 @@ pub struct HashGrid {
 }
 
 impl HashGrid {
-    /// Tables initialised uniformly in ±1e-4 (as instant-NGP).
-    pub fn new(config: HashGridConfig, device: &Device) -> Self {
+    /// Tables initialised uniformly in ±1e-4 (as instant-NGP), from `seed` (the same seed gives
+    /// the same tables, whatever else draws random numbers).
+    pub fn new(config: HashGridConfig, seed: u64, device: &Device) -> Self {
         let rows = config.levels * config.table_size() as usize;
-        let tables = Tensor::random([config.features, rows], Distribution::Uniform(-1e-4, 1e-4), device);
+        let tables = super::uniform_tensor([config.features, rows], 1e-4, seed, device);
         Self { tables: Param::from_tensor(tables), config }
     }
 

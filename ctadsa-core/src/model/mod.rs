@@ -74,6 +74,15 @@ pub fn host_vec<const D: usize>(t: Tensor<D>) -> Vec<f32> {
     t.into_data().convert::<f32>().try_into_vec::<f32>().unwrap_or_default()
 }
 
+/// A `shape` tensor of values uniform in `±bound`, drawn from `seed` on the host (burn's own
+/// generator is global and shared by every thread, so it cannot make runs reproducible).
+pub fn uniform_tensor(shape: [usize; 2], bound: f64, seed: u64, device: &Device) -> Tensor<2> {
+    use rand::{RngExt, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let data: Vec<f32> = (0..shape[0] * shape[1]).map(|_| rng.random_range(-bound..=bound) as f32).collect();
+    Tensor::from_data(TensorData::new(data, shape), device)
+}
+
 /// A `[n, cols]` tensor from host data.
 pub fn tensor2(data: Vec<f32>, cols: usize, device: &Device) -> Tensor<2> {
     let n = data.len() / cols;
@@ -92,15 +101,16 @@ impl GaussianModel {
         }
     }
 
-    /// A fresh field for `config` over a box.
+    /// A fresh field for `config` over a box; its random weights come from `seed`.
     pub fn new_field(
         config: &FieldConfig,
         min_mm: [f32; 3],
         size_mm: [f32; 3],
         initial_density: f32,
+        seed: u64,
         device: &Device,
     ) -> OpacityField {
-        OpacityField::new(config, min_mm, size_mm, initial_density, device)
+        OpacityField::new(config, min_mm, size_mm, initial_density, seed, device)
     }
 
     /// Number of Gaussians.
