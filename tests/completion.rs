@@ -146,6 +146,46 @@ fn resumed_run_continues_the_same_trajectory() {
     assert!(worst < 1e-3, "centres differ by up to {worst} mm after resuming");
 }
 
+/// Copies a folder tree.
+fn copy_dir(from: &std::path::Path, to: &std::path::Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for e in std::fs::read_dir(from).unwrap() {
+        let e = e.unwrap();
+        if e.file_type().unwrap().is_dir() {
+            copy_dir(&e.path(), &to.join(e.file_name()));
+        } else {
+            std::fs::copy(e.path(), to.join(e.file_name())).unwrap();
+        }
+    }
+}
+
+#[test]
+fn no_ground_truth_steers_the_method() {
+    // The same case without its gt/ folder gives the same completed mesh; scoring is skipped.
+    let case = tiny_case();
+    let copy = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("tiny-no-gt-{}", std::process::id()));
+    copy_dir(&case.dir, &copy);
+    std::fs::remove_dir_all(copy.join("gt")).unwrap();
+    let blind = Case::load(&copy).unwrap();
+    let mut outputs = Vec::new();
+    for (c, name) in [(case, "with-gt"), (&blind, "without-gt")] {
+        let mut trainer = Trainer::new(c, tiny_config(30), Device::ndarray().autodiff()).unwrap();
+        while trainer.iteration < 30 {
+            trainer.step().unwrap();
+        }
+        let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("tiny-{name}-{}", std::process::id()));
+        let summary = write_outputs(&dir, c, &trainer).unwrap();
+        outputs.push((summary, std::fs::read(dir.join("mesh.obj")).unwrap(), trainer.history.clone()));
+    }
+    for (a, b) in outputs[0].2.iter().zip(&outputs[1].2) {
+        assert_eq!(a.loss, b.loss, "iteration {}: losses differ", a.iteration);
+    }
+    assert!(outputs[0].0.metrics.is_some(), "the full case is scored");
+    assert!(outputs[1].0.metrics.is_none(), "the case without gt/ is not scored");
+    assert_eq!(outputs[0].0.mc_level, outputs[1].0.mc_level);
+    assert!(outputs[0].1 == outputs[1].1, "the completed meshes differ");
+}
+
 #[test]
 fn bad_configuration_values_name_the_key() {
     let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/configs/quick.toml")).unwrap();

@@ -42,6 +42,18 @@ pub struct RunConfig {
     pub image_binning: u32,
     /// Use only these views of the case (indices; empty = all).
     pub views: Vec<usize>,
+    /// Where the working box comes from.
+    pub working_box: WorkingBoxSource,
+}
+
+/// Where the reconstruction's working box comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum WorkingBoxSource {
+    /// The vessels' visual hull in the views joined with the prior's box, + 2 mm (default).
+    Inputs,
+    /// The box `case.json` declares (for a synthetic case: the complete tree's box + 1 mm).
+    Case,
 }
 
 impl Default for RunConfig {
@@ -53,6 +65,7 @@ impl Default for RunConfig {
             checkpoint_every: 5000,
             image_binning: 1,
             views: vec![],
+            working_box: WorkingBoxSource::Inputs,
         }
     }
 }
@@ -231,6 +244,16 @@ pub struct OutputConfig {
     /// Connected components of the extracted surface with less area than this (mm²) are
     /// dropped (floaters); 0 keeps everything. The unfiltered surface is kept as `mesh-raw.*`.
     pub min_island_mm2: f64,
+    /// Pick the iso-level from the views (`docs/METRICS.md`): the level whose extracted
+    /// volume, projected into every view, best matches the views' vessel masks. `mc_level` is
+    /// then ignored.
+    pub level_from_views: bool,
+    /// Keep the prior: the completed surface is the prior mesh joined with the extracted
+    /// surface's new vessels (its parts outside the prior and farther than `keep_prior_mm`
+    /// from it).
+    pub keep_prior: bool,
+    /// See `keep_prior` (mm).
+    pub keep_prior_mm: f64,
 }
 
 impl Default for OutputConfig {
@@ -242,6 +265,9 @@ impl Default for OutputConfig {
             mesh_format: "obj".into(),
             metric_samples: 50_000,
             min_island_mm2: 0.0,
+            level_from_views: true,
+            keep_prior: true,
+            keep_prior_mm: 1.0,
         }
     }
 }
@@ -421,6 +447,16 @@ impl Config {
         check(self.densify.grad_threshold > 0.0, "densify.grad_threshold", "must be > 0")?;
         check(self.output.min_island_mm2 >= 0.0, "output.min_island_mm2", "must be ≥ 0")?;
         check(self.output.mc_level > 0.0, "output.mc_level", "must be > 0")?;
+        check(
+            self.output.keep_prior_mm >= 0.0 && self.output.keep_prior_mm <= 100.0,
+            "output.keep_prior_mm",
+            "must be in [0, 100] mm",
+        )?;
+        check(
+            (1..=crate::eval::MAX_SAMPLES).contains(&self.output.metric_samples),
+            "output.metric_samples",
+            "must be in 1..=10,000,000",
+        )?;
         check(
             ["obj", "ply", "stl"].contains(&self.output.mesh_format.as_str()),
             "output.mesh_format",

@@ -11,16 +11,18 @@ use serde::Serialize;
 use crate::case::images::write_rgb_or_grey;
 use crate::case::{Case, ViewGeometry};
 use crate::error::{Result, write_file};
+use crate::eval::{CaseTruth, EvalOptions};
+use crate::extraction::{LevelScore, best_level, join_prior, prior_solid, score_levels};
 use crate::mesh::TriMesh;
-use crate::mesh::io::{read_mesh, write_mesh, write_point_ply};
+use crate::mesh::io::{write_mesh, write_point_ply};
 use crate::mesh::marching::extract_isosurface;
 use crate::mesh::render_png::{Coloured, OrbitView, standard_views, write_mesh_png};
-use crate::mesh::sample::sample_surface;
 use crate::mesh::split::split_by_distance;
-use crate::metrics::{RegionScores, percentile, region_scores};
+use crate::metrics::{RegionScores, percentile};
 use crate::model::host_vec;
 use crate::plot::{PALETTE, Series, line_plot};
 use crate::pose::{PoseCorrection, PoseError, corrected_view, pose_errors};
+use crate::surface_metrics::Coverage;
 use crate::train::Trainer;
 use crate::volume::nifti_io::write_nifti;
 use crate::volume::{Grid, Volume};
@@ -37,13 +39,22 @@ pub struct RunSummary {
     pub n2: usize,
     /// Iso-level of the extracted surface (density units) and the triangle count.
     pub mc_level: f64,
+    /// With `output.level_from_views`: every candidate level and its silhouette Dice.
+    pub level_scores: Vec<LevelScore>,
     pub mesh_triangles: usize,
     /// Connected components dropped as floaters (`output.min_island_mm2`).
     pub islands_dropped: usize,
     pub final_loss: f64,
+    /// Scores of the completed surface (exact distances, `docs/METRICS.md`) when the case has
+    /// ground truth.
     pub metrics: Option<RegionScores>,
-    /// The same metrics for the prior alone (what the run started from), for comparison.
+    /// Missing-vessel recall and false surface of the completed surface.
+    pub coverage: Option<Coverage>,
+    /// The completed surface in the paper's convention (vertex point sets).
+    pub paper_metrics: Option<RegionScores>,
+    /// The same scores for the prior alone (what the run started from), for comparison.
     pub prior_metrics: Option<RegionScores>,
+    pub prior_coverage: Option<Coverage>,
     /// With pose refinement on a case whose true view corrections are known: how far each
     /// refined view is from the truth.
     pub pose_errors: Option<Vec<PoseError>>,
@@ -109,28 +120,6 @@ fn write_renders(dir: &Path, case: &Case, trainer: &Trainer, renders: &[Vec<f32>
         write_rgb_or_grey(&dir.join(format!("renders/{name}.png")), big_w as u32, big_h as u32, big, 3)?;
     }
     Ok(())
-}
-
-/// Surface samples of a mesh for metrics.
-fn samples(mesh: &TriMesh, n: usize) -> Vec<DVec3> {
-    sample_surface(mesh, n, 1234)
-}
-
-/// Scores of `pred` against the case's ground truth, if it has one.
-pub fn case_metrics(case: &Case, pred: &TriMesh, n: usize) -> Result<Option<RegionScores>> {
-    let Some(gt) = &case.file.ground_truth else { return Ok(None) };
-    let complete = read_mesh(&case.path(&gt.complete_mesh))?;
-    let split = match (&gt.missing_mesh, &case.file.prior) {
-        (Some(missing), Some(prior)) => {
-            let m = read_mesh(&case.path(missing))?;
-            let p = read_mesh(&case.path(&prior.mesh))?;
-            Some((samples(&p, n), samples(&m, n)))
-        }
-        _ => None,
-    };
-    let pred_pts = samples(pred, n);
-    let gt_pts = samples(&complete, n);
-    Ok(Some(region_scores(&pred_pts, &gt_pts, split.as_ref().map(|(p, m)| (p.as_slice(), m.as_slice())))))
 }
 
 /// With pose refinement: writes `poses.json` (the corrections and the refined geometry of every
@@ -205,14 +194,34 @@ pub fn write_outputs(dir: &Path, case: &Case, trainer: &Trainer) -> Result<RunSu
     // Volume and mesh.
     let volume = density_volume(trainer)?;
     write_nifti(&dir.join("density.nii.gz"), &volume, "ctadsa density (per mm)")?;
-    let level = mc_level(&volume, cfg.output.mc_level, cfg.output.mc_relative);
+    let prior = case.prior_mesh()?;
+    let solid = match (&prior, cfg.output.keep_prior) {
+        (Some(p), true) => Some(prior_solid(p, &volume)),
+        _ => None,
+    };
+    let level_scores = if cfg.output.level_from_views {
+        score_levels(&volume, trainer.views.views(), &trainer.images, cfg.init.mask_threshold, solid.as_ref())
+    } else {
+        Vec::new()
+    };
+    let level = match best_level(&level_scores) {
+        Some(best) => best.level,
+        None => mc_level(&volume, cfg.output.mc_level, cfg.output.mc_relative),
+    };
     let raw_mesh = extract_isosurface(&volume, level as f32);
-    let (mesh, islands_dropped) = if cfg.output.min_island_mm2 > 0.0 {
+    let (extracted, islands_dropped) = if cfg.output.min_island_mm2 > 0.0 {
         let (kept, dropped) = raw_mesh.without_islands_below(cfg.output.min_island_mm2);
         write_mesh(&dir.join(format!("mesh-raw.{}", cfg.output.mesh_format)), &raw_mesh)?;
         (kept, dropped)
     } else {
         (raw_mesh, 0)
+    };
+    let mesh = match (&prior, &solid) {
+        (Some(p), Some(s)) => {
+            write_mesh(&dir.join(format!("mesh-extracted.{}", cfg.output.mesh_format)), &extracted)?;
+            join_prior(&extracted, p, s, cfg.output.keep_prior_mm)
+        }
+        _ => extracted,
     };
     write_mesh(&dir.join(format!("mesh.{}", cfg.output.mesh_format)), &mesh)?;
     // Renders.
@@ -244,7 +253,6 @@ pub fn write_outputs(dir: &Path, case: &Case, trainer: &Trainer) -> Result<RunSu
     .collect();
     line_plot(&dir.join("loss.png"), "TRAINING LOSS", "ITERATION", "LOSS (LOG)", &series, true)?;
     // Pictures of the mesh: prior in red, the rest of the completed mesh in blue.
-    let prior = case.prior_mesh()?;
     let mut parts = vec![Coloured { mesh: &mesh, rgb: [60, 120, 220] }];
     if let Some(p) = &prior {
         parts.push(Coloured { mesh: p, rgb: [210, 60, 50] });
@@ -263,11 +271,12 @@ pub fn write_outputs(dir: &Path, case: &Case, trainer: &Trainer) -> Result<RunSu
         )?;
     }
     // Metrics.
-    let n = cfg.output.metric_samples;
-    let metrics = case_metrics(case, &mesh, n)?;
-    let prior_metrics = match &prior {
-        Some(p) => case_metrics(case, p, n)?,
-        None => None,
+    let options = EvalOptions { samples: cfg.output.metric_samples, ..EvalOptions::default() };
+    let truth = CaseTruth::load(case)?;
+    let scored = truth.as_ref().map(|t| t.evaluate(&mesh, &options));
+    let prior_scored = match (&truth, &prior) {
+        (Some(t), Some(p)) => Some(t.evaluate(p, &options)),
+        _ => None,
     };
     let pose_errors = write_poses(dir, case, trainer, prior.as_ref())?;
     let summary = RunSummary {
@@ -277,11 +286,15 @@ pub fn write_outputs(dir: &Path, case: &Case, trainer: &Trainer) -> Result<RunSu
         n1: trainer.n1,
         n2: trainer.n2,
         mc_level: level,
+        level_scores,
         mesh_triangles: mesh.faces.len(),
         islands_dropped,
         final_loss: h.last().map_or(f64::NAN, |s| s.loss),
-        metrics,
-        prior_metrics,
+        metrics: scored.as_ref().map(|r| r.scores),
+        coverage: scored.as_ref().map(|r| r.coverage),
+        paper_metrics: scored.as_ref().map(|r| r.paper),
+        prior_metrics: prior_scored.as_ref().map(|r| r.scores),
+        prior_coverage: prior_scored.as_ref().map(|r| r.coverage),
         pose_errors,
     };
     write_file(&dir.join("summary.json"), serde_json::to_string_pretty(&summary).unwrap_or_default().as_bytes())?;

@@ -19,7 +19,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::case::Case;
 use crate::case::images::Image;
-use crate::config::Config;
+use crate::config::{Config, WorkingBoxSource};
 use crate::densify::{self, DensifyStats};
 use crate::error::{CoreError, Result, read_file, write_file};
 use crate::init::initialise;
@@ -29,6 +29,7 @@ use crate::mesh::sample::sample_surface;
 use crate::model::{GaussianInit, GaussianModel, ScaleBounds, host_vec};
 use crate::pose::{PoseCorrection, ViewPoses};
 use crate::volume::BoxMm;
+use crate::working_box::working_box_from_inputs;
 
 /// Seconds spent per stage in one step.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
@@ -63,6 +64,9 @@ struct CheckpointState {
     n1: usize,
     n2: usize,
     history: Vec<StepLog>,
+    /// The working box of the run (absent in checkpoints of older versions).
+    #[serde(default)]
+    working_box: Option<BoxMm>,
 }
 
 /// The case's images and views after the run's view selection and binning.
@@ -122,6 +126,14 @@ pub fn estimate_initial_density(views: &ViewSet, images: &[Image], init: &Gaussi
     if unit_mass > 0.0 && target_mass > 0.0 { target_mass / unit_mass } else { 1.0 }
 }
 
+/// The run's working box (`run.working_box`).
+fn working_box(case: &Case, cfg: &Config, views: &ViewSet, images: &[Image], prior: Option<&TriMesh>) -> Result<BoxMm> {
+    match cfg.run.working_box {
+        WorkingBoxSource::Case => Ok(case.file.volume.bounds()),
+        WorkingBoxSource::Inputs => working_box_from_inputs(views.views(), images, prior, cfg.init.mask_threshold),
+    }
+}
+
 /// A training run in memory.
 pub struct Trainer {
     pub cfg: Config,
@@ -169,7 +181,7 @@ impl Trainer {
         cfg.validate()?;
         let (views, images) = prepare_views(case, &cfg)?;
         let prior = case.prior_mesh()?;
-        let working_box = case.file.volume.bounds();
+        let working_box = working_box(case, &cfg, &views, &images, prior.as_ref())?;
         let voxel_mm = case.file.volume.voxel_mm;
         let bounds = ScaleBounds::from_voxel(voxel_mm, cfg.model.scale_min_voxels, cfg.model.scale_max_voxels);
         let init = initialise(
@@ -193,6 +205,7 @@ impl Trainer {
             working_box.min_mm.map(|v| v as f32),
             size.map(|v| v as f32),
             rho0 as f32,
+            cfg.run.seed ^ 0xF1E1D,
             &device,
         );
         let model = GaussianModel::new(&init.gaussians, field, bounds, &device);
@@ -455,6 +468,7 @@ impl Trainer {
             n1: self.n1,
             n2: self.n2,
             history: self.history.clone(),
+            working_box: Some(self.working_box),
         };
         write_file(&ck.join("state.json"), serde_json::to_string(&state).unwrap_or_default().as_bytes())?;
         Ok(ck)
@@ -469,7 +483,10 @@ impl Trainer {
             .map_err(|e| CoreError::format(&state_path, format!("invalid checkpoint state: {e}")))?;
         let (views, images) = prepare_views(case, &cfg)?;
         let prior = case.prior_mesh()?;
-        let working_box = case.file.volume.bounds();
+        let working_box = match state.working_box {
+            Some(b) => b,
+            None => working_box(case, &cfg, &views, &images, prior.as_ref())?,
+        };
         let voxel_mm = case.file.volume.voxel_mm;
         let bounds = ScaleBounds::from_voxel(voxel_mm, cfg.model.scale_min_voxels, cfg.model.scale_max_voxels);
         let n = state.gaussians;
@@ -481,6 +498,7 @@ impl Trainer {
             working_box.min_mm.map(|v| v as f32),
             size.map(|v| v as f32),
             1.0,
+            cfg.run.seed ^ 0xF1E1D,
             &device,
         );
         let skeleton = GaussianModel::new(&skeleton_init, field, bounds, &device);

@@ -64,6 +64,21 @@ impl TriMesh {
         Some(self.vertices.iter().fold((first, first), |(lo, hi), v| (lo.min(*v), hi.max(*v))))
     }
 
+    /// The same faces with only the vertices they use (renumbered in first-use order).
+    pub fn compacted(&self) -> TriMesh {
+        let mut map: HashMap<u32, u32> = HashMap::new();
+        let mut out = TriMesh::default();
+        for f in &self.faces {
+            out.faces.push(f.map(|i| {
+                *map.entry(i).or_insert_with(|| {
+                    out.vertices.push(self.vertices[i as usize]);
+                    out.vertices.len() as u32 - 1
+                })
+            }));
+        }
+        out
+    }
+
     /// Appends another mesh.
     pub fn append(&mut self, other: &TriMesh) {
         let base = self.vertices.len() as u32;
