@@ -147,6 +147,14 @@ fn run_cell(cell: &Cell, matrix_dir: &Path, common: &[String], backend: BackendK
     put(&mut metrics, "", m.map(|m| &m.overall));
     put(&mut metrics, "roi_", m.and_then(|m| m.roi.as_ref()));
     put(&mut metrics, "prior_", m.and_then(|m| m.prior.as_ref()));
+    if let Some(c) = &summary.coverage {
+        metrics.insert("missing_recall".into(), c.missing_recall.and_then(finite));
+        metrics.insert("missing_surface_within_1mm".into(), c.missing_surface_within_1mm.and_then(finite));
+        metrics.insert("false_surface".into(), finite(c.false_surface));
+    }
+    // The untouched prior mesh, scored the same way, for comparison.
+    let p = summary.prior_metrics.as_ref();
+    put(&mut metrics, "untouched_prior_", p.map(|m| &m.overall));
     let result = CellResult {
         case: cell.case_name.clone(),
         method: cell.method.name.clone(),

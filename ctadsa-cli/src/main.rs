@@ -4,6 +4,7 @@ mod backend;
 mod bench;
 mod clinical;
 mod complete;
+mod diagnose;
 mod eval;
 mod experiment;
 mod progress;
@@ -35,6 +36,9 @@ enum Command {
     /// Chamfer and Hausdorff distances (mm) of a predicted surface to a ground truth, overall and
     /// in the missing-vessel region (ROI) and the prior region.
     Eval(eval::EvalArgs),
+    /// Where a run on a synthetic case lost the missing vessels: found, not in the vessel masks,
+    /// behind the prior, not seeded, misplaced in depth, or faded below the iso-level.
+    Diagnose(diagnose::DiagnoseArgs),
     /// Run a matrix of cases × views × prior thresholds × methods (resumable) and tabulate it.
     Experiment(experiment::ExperimentArgs),
     /// Benchmarks (renderer, projector) with a table of timings and throughput.
@@ -61,6 +65,7 @@ fn main() -> Result<()> {
         Command::Complete(args) => complete::run(args),
         Command::Demo(args) => complete::demo(args),
         Command::Eval(args) => eval::run(args),
+        Command::Diagnose(args) => diagnose::run(args),
         Command::Experiment(args) => experiment::run(args),
         Command::Bench(args) => bench::run(args),
         Command::ImportDsa(args) => clinical::import_dsa(args),

@@ -89,6 +89,12 @@ pub struct InitConfig {
     pub n2_voxel_mm: f64,
     /// Neighbours for the initial isotropic scale.
     pub knn: usize,
+    /// Residual seeds (intersect modes): a view whose pixel lies in the prior's dilated
+    /// projection cannot show residual there, so it supports the voxel when its vessel mask
+    /// does, provided at least half of the views (rounded up) show residual. Off: every view
+    /// must show residual (the vessels behind the prior in any view are never seeded). Off by
+    /// default: on one BraVa tree it traded recall for false surface (docs/RESULTS.md).
+    pub occluded_views_support: bool,
 }
 
 impl Default for InitConfig {
@@ -102,6 +108,7 @@ impl Default for InitConfig {
             residual_dilation_px: 1,
             n2_voxel_mm: 0.0,
             knn: 3,
+            occluded_views_support: false,
         }
     }
 }

@@ -12,13 +12,13 @@ use crate::case::images::write_rgb_or_grey;
 use crate::case::{Case, ViewGeometry};
 use crate::error::{Result, write_file};
 use crate::eval::{CaseTruth, EvalOptions};
-use crate::extraction::{LevelScore, best_level, join_prior, prior_solid, score_levels};
+use crate::extraction::{LevelScore, best_level, density_scale, join_prior, prior_solid, score_levels};
 use crate::mesh::TriMesh;
 use crate::mesh::io::{write_mesh, write_point_ply};
 use crate::mesh::marching::extract_isosurface;
 use crate::mesh::render_png::{Coloured, OrbitView, standard_views, write_mesh_png};
 use crate::mesh::split::split_by_distance;
-use crate::metrics::{RegionScores, percentile};
+use crate::metrics::RegionScores;
 use crate::model::host_vec;
 use crate::plot::{PALETTE, Series, line_plot};
 use crate::pose::{PoseCorrection, PoseError, corrected_view, pose_errors};
@@ -71,11 +71,7 @@ pub fn density_volume(trainer: &Trainer) -> Result<Volume<f32>> {
 
 /// The iso-level: relative to the 99.9th percentile of the positive densities, or absolute.
 pub fn mc_level(volume: &Volume<f32>, level: f64, relative: bool) -> f64 {
-    if !relative {
-        return level;
-    }
-    let pos: Vec<f64> = volume.data.iter().filter(|&&v| v > 0.0).map(|&v| v as f64).collect();
-    level * if pos.is_empty() { 1.0 } else { percentile(&pos, 99.9) }
+    if relative { level * density_scale(volume) } else { level }
 }
 
 /// `[target | render | |difference|]` of every view, one PNG per view, magnified by an integer

@@ -64,6 +64,11 @@ impl Mask {
         Mask { data: self.data.iter().zip(&other.data).map(|(&a, &b)| a && !b).collect(), ..self.clone() }
     }
 
+    /// Pixels set in both.
+    pub fn and(&self, other: &Mask) -> Mask {
+        Mask { data: self.data.iter().zip(&other.data).map(|(&a, &b)| a && b).collect(), ..self.clone() }
+    }
+
     /// Number of set pixels.
     pub fn count(&self) -> usize {
         self.data.iter().filter(|&&b| b).count()
@@ -118,10 +123,14 @@ fn back_project(
     grid: &Grid,
     views: &[ConeBeamView],
     masks: &[Mask],
+    occluded: Option<&[Mask]>,
     values: &[Image],
     prior: Option<&Volume<u8>>,
     intersect: bool,
 ) -> Vec<(f64, DVec3)> {
+    // With occlusion masks, a view where the prior hides the pixel supports without residual,
+    // but at least half of the views (rounded up) must see residual.
+    let min_residual = if occluded.is_some() { views.len().div_ceil(2) } else { views.len() };
     let [nx, ny, nz] = grid.dims;
     (0..nx)
         .into_par_iter()
@@ -134,22 +143,28 @@ fn back_project(
                         continue;
                     }
                     let c = grid.centre_mm(i, j, k);
-                    let mut supported = 0usize;
+                    let (mut supported, mut residual) = (0usize, 0usize);
                     let mut log_sum = 0.0;
                     let mut sum = 0.0;
-                    for ((v, m), img) in views.iter().zip(masks).zip(values) {
-                        if let Some(px) = pixel_of(v, c)
-                            && m.data[px]
-                        {
+                    for (vi, ((v, m), img)) in views.iter().zip(masks).zip(values).enumerate() {
+                        let Some(px) = pixel_of(v, c) else { continue };
+                        let hidden = occluded.is_some_and(|o| o[vi].data[px]);
+                        if m.data[px] || hidden {
                             supported += 1;
+                        }
+                        // Scored by the views that show residual (an occluded view's pixel is
+                        // bright from the prior in front of or behind it).
+                        if m.data[px] {
+                            residual += 1;
                             let val = (img.data[px] as f64).max(1e-12);
                             log_sum += val.ln();
                             sum += val;
                         }
                     }
-                    let keep = if intersect { supported == views.len() } else { supported > 0 };
+                    let keep =
+                        if intersect { supported == views.len() && residual >= min_residual } else { supported > 0 };
                     if keep {
-                        let score = if intersect { (log_sum / views.len() as f64).exp() } else { sum };
+                        let score = if intersect { (log_sum / residual.max(1) as f64).exp() } else { sum };
                         out.push((score, c));
                     }
                 }
@@ -198,23 +213,26 @@ pub fn n2_seeds(
         return Ok(out);
     }
     let masks: Vec<Mask> = images.iter().map(|img| vessel_mask(img, cfg.mask_threshold)).collect();
+    let mut occluded: Option<Vec<Mask>> = None;
     let support: Vec<Mask> = match cfg.n2_mode {
         SeedMode::AllViewsIntersect => masks.iter().map(|m| m.dilated(cfg.residual_dilation_px)).collect(),
         _ => {
             let Some(s) = solid.as_ref() else {
                 return Err(CoreError::invalid(format!("init.n2_mode {:?} needs a prior mesh", cfg.n2_mode)));
             };
-            let prior_sil = silhouettes(s, views);
-            masks
-                .iter()
-                .zip(&prior_sil)
-                .map(|(m, p)| m.minus(&p.dilated(cfg.prior_dilation_px)).dilated(cfg.residual_dilation_px))
-                .collect()
+            let prior_sil: Vec<Mask> = silhouettes(s, views).iter().map(|p| p.dilated(cfg.prior_dilation_px)).collect();
+            if cfg.occluded_views_support {
+                occluded = Some(
+                    masks.iter().zip(&prior_sil).map(|(m, p)| m.dilated(cfg.residual_dilation_px).and(p)).collect(),
+                );
+            }
+            masks.iter().zip(&prior_sil).map(|(m, p)| m.minus(p).dilated(cfg.residual_dilation_px)).collect()
         }
     };
     let intersect = cfg.n2_mode != SeedMode::ResidualUnion;
     let exclude = if cfg.n2_mode == SeedMode::AllViewsIntersect { None } else { solid.as_ref() };
-    let mut scored = back_project(&grid, views, &support, images, exclude, intersect);
+    let occluded = occluded.filter(|_| intersect);
+    let mut scored = back_project(&grid, views, &support, occluded.as_deref(), images, exclude, intersect);
     scored.sort_by(|a, b| b.0.total_cmp(&a.0));
     scored.truncate(cfg.n2);
     Ok(scored

@@ -9,6 +9,7 @@ pub mod case;
 pub mod clinical;
 pub mod config;
 pub mod densify;
+pub mod diagnose;
 pub mod error;
 pub mod eval;
 pub mod export;

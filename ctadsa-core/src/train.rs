@@ -127,7 +127,13 @@ pub fn estimate_initial_density(views: &ViewSet, images: &[Image], init: &Gaussi
 }
 
 /// The run's working box (`run.working_box`).
-fn working_box(case: &Case, cfg: &Config, views: &ViewSet, images: &[Image], prior: Option<&TriMesh>) -> Result<BoxMm> {
+pub fn run_working_box(
+    case: &Case,
+    cfg: &Config,
+    views: &ViewSet,
+    images: &[Image],
+    prior: Option<&TriMesh>,
+) -> Result<BoxMm> {
     match cfg.run.working_box {
         WorkingBoxSource::Case => Ok(case.file.volume.bounds()),
         WorkingBoxSource::Inputs => working_box_from_inputs(views.views(), images, prior, cfg.init.mask_threshold),
@@ -181,7 +187,7 @@ impl Trainer {
         cfg.validate()?;
         let (views, images) = prepare_views(case, &cfg)?;
         let prior = case.prior_mesh()?;
-        let working_box = working_box(case, &cfg, &views, &images, prior.as_ref())?;
+        let working_box = run_working_box(case, &cfg, &views, &images, prior.as_ref())?;
         let voxel_mm = case.file.volume.voxel_mm;
         let bounds = ScaleBounds::from_voxel(voxel_mm, cfg.model.scale_min_voxels, cfg.model.scale_max_voxels);
         let init = initialise(
@@ -485,7 +491,7 @@ impl Trainer {
         let prior = case.prior_mesh()?;
         let working_box = match state.working_box {
             Some(b) => b,
-            None => working_box(case, &cfg, &views, &images, prior.as_ref())?,
+            None => run_working_box(case, &cfg, &views, &images, prior.as_ref())?,
         };
         let voxel_mm = case.file.volume.voxel_mm;
         let bounds = ScaleBounds::from_voxel(voxel_mm, cfg.model.scale_min_voxels, cfg.model.scale_max_voxels);
