@@ -175,6 +175,25 @@ fn no_ground_truth_steers_the_method() {
         }
         let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("tiny-{name}-{}", std::process::id()));
         let summary = write_outputs(&dir, c, &trainer).unwrap();
+        // The working box comes from the views and the prior, yet holds the whole tree: it is
+        // within a few scan steps of the case's box (the complete tree's box + 1 mm).
+        let (inputs, case_box) = (trainer.working_box, c.file.volume.bounds());
+        for a in 0..3 {
+            assert!(
+                (inputs.min_mm[a] - case_box.min_mm[a]).abs() < 3.0
+                    && (inputs.max_mm[a] - case_box.max_mm[a]).abs() < 3.0,
+                "axis {a}: working box {inputs:?} vs the case's {case_box:?}"
+            );
+        }
+        if name == "with-gt" {
+            // The diagnosis's "found" class is the recall criterion, so the two agree.
+            let b = ctadsa_core::diagnose::diagnose_run(c, &dir).unwrap();
+            let recall = summary.coverage.unwrap().missing_recall.unwrap();
+            let total = b.found + b.not_in_masks + b.behind_prior + b.not_seeded + b.misplaced + b.faded;
+            assert!((total - 1.0).abs() < 1e-9, "classes sum to {total}");
+            assert!((b.found - recall).abs() < 1e-9, "found {} vs recall {recall}", b.found);
+            eprintln!("tiny case after 30 iterations: {b:?}");
+        }
         outputs.push((summary, std::fs::read(dir.join("mesh.obj")).unwrap(), trainer.history.clone()));
     }
     for (a, b) in outputs[0].2.iter().zip(&outputs[1].2) {
