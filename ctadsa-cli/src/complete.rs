@@ -42,7 +42,9 @@ pub struct CompleteArgs {
     resume: Option<String>,
 }
 
-/// Installs a Ctrl-C handler that raises a flag (the loop saves a checkpoint and stops).
+/// Installs a handler for Ctrl-C (SIGINT), SIGTERM (what `timeout`, SLURM and `docker stop`
+/// send) and SIGHUP that raises a flag: the loop saves a checkpoint and stops, and the command
+/// exits non-zero.
 fn interrupt_flag() -> Arc<AtomicBool> {
     let flag = Arc::new(AtomicBool::new(false));
     let f = flag.clone();
@@ -179,10 +181,13 @@ pub fn run(args: CompleteArgs) -> Result<()> {
     let case = Case::load(&args.case)?;
     let cfg = Config::load(args.config.as_deref(), &args.overrides)?;
     let out = args.out.clone().unwrap_or_else(|| PathBuf::from("runs").join(&case.file.name));
-    if let Some(s) = run_completion(&case, cfg, args.backend, &out, args.resume.as_deref())? {
-        print_summary(&s, &out);
+    match run_completion(&case, cfg, args.backend, &out, args.resume.as_deref())? {
+        Some(s) => {
+            print_summary(&s, &out);
+            Ok(())
+        }
+        None => bail!("interrupted: the checkpoint is saved; run the same command with --resume to finish"),
     }
-    Ok(())
 }
 
 #[derive(Args)]

@@ -166,8 +166,7 @@ fn run_cell(cell: &Cell, matrix_dir: &Path, common: &[String], backend: BackendK
         gaussians: summary.gaussians,
         metrics,
     };
-    std::fs::write(cell.dir.join("cell.json"), serde_json::to_string_pretty(&result)?)
-        .with_context(|| format!("cannot write {}", cell.dir.join("cell.json").display()))?;
+    ctadsa_core::error::write_file(&cell.dir.join("cell.json"), serde_json::to_string_pretty(&result)?.as_bytes())?;
     Ok(result)
 }
 
@@ -215,7 +214,7 @@ fn write_tables(out: &Path, results: &[CellResult], matrix: &Matrix) -> Result<(
             vals.join(",")
         );
     }
-    std::fs::write(out.join("results.csv"), csv)?;
+    ctadsa_core::error::write_file(&out.join("results.csv"), csv.as_bytes())?;
 
     // Markdown: rows = method (× prior when several), columns = views × (CD_ROI, HD95_ROI, CD, HD95).
     let cases: std::collections::BTreeSet<&str> = results.iter().map(|r| r.case.as_str()).collect();
@@ -260,7 +259,7 @@ fn write_tables(out: &Path, results: &[CellResult], matrix: &Matrix) -> Result<(
             md += "\n";
         }
     }
-    std::fs::write(out.join("table.md"), &md)?;
+    ctadsa_core::error::write_file(&out.join("table.md"), md.as_bytes())?;
     println!("\n{md}");
 
     // Fig. 3: ROI metrics against the prior threshold, one series per method and view count.
@@ -299,6 +298,14 @@ pub fn run(args: ExperimentArgs) -> Result<()> {
     let matrix: Matrix = toml::from_str(&text).with_context(|| format!("{}: invalid matrix", args.matrix.display()))?;
     if matrix.views.is_empty() || matrix.methods.is_empty() {
         bail!("{}: the matrix needs at least one view subset and one method", args.matrix.display());
+    }
+    for m in &matrix.methods {
+        ctadsa_core::error::check_file_name(&m.name, "method name")
+            .map_err(|e| anyhow::anyhow!("{}: {e}", args.matrix.display()))?;
+    }
+    for p in &matrix.priors {
+        ctadsa_core::error::check_file_name(p, "prior folder")
+            .map_err(|e| anyhow::anyhow!("{}: {e}", args.matrix.display()))?;
     }
     let matrix_dir = args.matrix.parent().unwrap_or(Path::new(".")).to_path_buf();
     let mut common = matrix.set.clone();

@@ -49,12 +49,70 @@ pub fn read_file(path: &Path) -> Result<Vec<u8>> {
     std::fs::read(path).map_err(|e| CoreError::io(path, e))
 }
 
-/// Writes a whole file (creating parent folders), naming it on failure.
+/// Writes a whole file atomically (creating parent folders), naming it on failure: the bytes go
+/// to a temporary file beside it, which is then renamed over `path`, so a reader (or a run killed
+/// meanwhile) sees the old file or the new one, never half of one.
 pub fn write_file(path: &Path, bytes: &[u8]) -> Result<()> {
     if let Some(parent) = path.parent()
         && !parent.as_os_str().is_empty()
     {
         std::fs::create_dir_all(parent).map_err(|e| CoreError::io(parent, e))?;
     }
-    std::fs::write(path, bytes).map_err(|e| CoreError::io(path, e))
+    let name = path.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default();
+    let tmp = path.with_file_name(format!(".{name}.tmp-{}", std::process::id()));
+    let written = std::fs::write(&tmp, bytes).and_then(|()| std::fs::rename(&tmp, path));
+    written.map_err(|e| {
+        let _ = std::fs::remove_file(&tmp);
+        CoreError::io(path, e)
+    })
+}
+
+/// `value` as pretty JSON, or an error naming `path` (never an empty file).
+pub fn to_json(value: &impl serde::Serialize, path: &Path) -> Result<String> {
+    serde_json::to_string_pretty(value).map_err(|e| CoreError::format(path, format!("cannot encode JSON: {e}")))
+}
+
+/// Checks that `name` (the `what` of something, e.g. "view name") can be used as one file or
+/// folder name inside an output folder: not empty, no path separator, not `.` or `..`, no
+/// control character, at most 128 bytes.
+pub fn check_file_name(name: &str, what: &str) -> std::result::Result<(), String> {
+    let bad = name.is_empty()
+        || name.len() > 128
+        || name == "."
+        || name == ".."
+        || name.chars().any(|c| c == '/' || c == '\\' || c.is_control());
+    if bad {
+        return Err(format!(
+            "{what} `{}` cannot be used as a file name (no `/`, `\\`, `..`, control characters; 1–128 bytes)",
+            name.escape_default()
+        ));
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn file_names_that_would_escape_are_refused() {
+        for bad in ["", ".", "..", "../x", "a/b", "a\\b", "x\u{0}y", &"n".repeat(129)] {
+            assert!(check_file_name(bad, "name").is_err(), "{bad:?} accepted");
+        }
+        for good in ["ap", "lat", "oblique-45", "BG0002.CNG", "view ..1"] {
+            assert!(check_file_name(good, "name").is_ok(), "{good:?} refused");
+        }
+    }
+
+    #[test]
+    fn write_file_replaces_atomically_and_leaves_no_temporary() {
+        let dir = std::env::temp_dir().join(format!("ctadsa-write-{}", std::process::id()));
+        let path = dir.join("sub/out.json");
+        write_file(&path, b"first").unwrap();
+        write_file(&path, b"second").unwrap();
+        assert_eq!(std::fs::read(&path).unwrap(), b"second");
+        let names: Vec<_> = std::fs::read_dir(dir.join("sub")).unwrap().map(|e| e.unwrap().file_name()).collect();
+        assert_eq!(names.len(), 1, "only the file itself: {names:?}");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 }

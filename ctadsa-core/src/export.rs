@@ -10,7 +10,7 @@ use serde::Serialize;
 
 use crate::case::images::write_rgb_or_grey;
 use crate::case::{Case, ViewGeometry};
-use crate::error::{Result, write_file};
+use crate::error::{Result, to_json, write_file};
 use crate::eval::{CaseTruth, EvalOptions};
 use crate::extraction::{LevelScore, best_level, density_scale, join_prior, prior_solid, score_levels};
 use crate::mesh::TriMesh;
@@ -146,12 +146,15 @@ fn write_poses(dir: &Path, case: &Case, trainer: &Trainer, prior: Option<&TriMes
             },
         }));
     }
-    let text = serde_json::to_string_pretty(&serde_json::json!({
-        "convention": "view v sees world point x where the nominal view sees R(ω) x + t (rotation about the isocentre, then translation); geometry = the refined view",
-        "views": entries,
-    }))
-    .unwrap_or_default();
-    write_file(&dir.join("poses.json"), text.as_bytes())?;
+    let poses_path = dir.join("poses.json");
+    let text = to_json(
+        &serde_json::json!({
+            "convention": "view v sees world point x where the nominal view sees R(ω) x + t (rotation about the isocentre, then translation); geometry = the refined view",
+            "views": entries,
+        }),
+        &poses_path,
+    )?;
+    write_file(&poses_path, text.as_bytes())?;
     let truth = case.file.ground_truth.as_ref().and_then(|g| g.view_corrections.as_ref());
     let Some(truth) = truth else {
         return Ok(None);
@@ -293,6 +296,7 @@ pub fn write_outputs(dir: &Path, case: &Case, trainer: &Trainer) -> Result<RunSu
         prior_coverage: prior_scored.as_ref().map(|r| r.coverage),
         pose_errors,
     };
-    write_file(&dir.join("summary.json"), serde_json::to_string_pretty(&summary).unwrap_or_default().as_bytes())?;
+    let summary_path = dir.join("summary.json");
+    write_file(&summary_path, to_json(&summary, &summary_path)?.as_bytes())?;
     Ok(summary)
 }

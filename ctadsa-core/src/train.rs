@@ -21,7 +21,7 @@ use crate::case::Case;
 use crate::case::images::Image;
 use crate::config::{Config, WorkingBoxSource};
 use crate::densify::{self, DensifyStats};
-use crate::error::{CoreError, Result, read_file, write_file};
+use crate::error::{CoreError, Result, read_file, to_json, write_file};
 use crate::init::initialise;
 use crate::loss::{LossTargets, PriorAnchor};
 use crate::mesh::TriMesh;
@@ -476,7 +476,8 @@ impl Trainer {
             history: self.history.clone(),
             working_box: Some(self.working_box),
         };
-        write_file(&ck.join("state.json"), serde_json::to_string(&state).unwrap_or_default().as_bytes())?;
+        let state_path = ck.join("state.json");
+        write_file(&state_path, to_json(&state, &state_path)?.as_bytes())?;
         Ok(ck)
     }
 

@@ -10,7 +10,7 @@ use ctadsa_render::{ConeBeamView, Intrinsics, TigreGeometry, ViewSet};
 use glam::DMat4;
 use serde::{Deserialize, Serialize};
 
-use crate::error::{CoreError, Result, read_file, write_file};
+use crate::error::{CoreError, Result, check_file_name, read_file, write_file};
 use crate::mesh::{TriMesh, io::read_mesh};
 use crate::volume::BoxMm;
 use images::{Image, read_image};
@@ -238,6 +238,10 @@ impl CaseFile {
         }
         if file.views.is_empty() {
             return Err(CoreError::format(path, "the case has no views"));
+        }
+        check_file_name(&file.name, "case name").map_err(|e| CoreError::format(path, e))?;
+        for v in &file.views {
+            check_file_name(&v.name, "view name").map_err(|e| CoreError::format(path, e))?;
         }
         let b = file.volume.bounds();
         if !(0..3).all(|a| b.max_mm[a] > b.min_mm[a]) || !(file.volume.voxel_mm > 0.0) {
