@@ -259,7 +259,8 @@ pub struct OutputConfig {
     /// surface's new vessels (its parts outside the prior and farther than `keep_prior_mm`
     /// from it).
     pub keep_prior: bool,
-    /// See `keep_prior` (mm).
+    /// See `keep_prior` (mm). 0.3 scored best of 0.3 and 1.0 on the BraVa trees
+    /// (docs/RESULTS.md).
     pub keep_prior_mm: f64,
 }
 
@@ -274,7 +275,7 @@ impl Default for OutputConfig {
             min_island_mm2: 0.0,
             level_from_views: true,
             keep_prior: true,
-            keep_prior_mm: 1.0,
+            keep_prior_mm: 0.3,
         }
     }
 }
