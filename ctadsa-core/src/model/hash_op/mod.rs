@@ -52,11 +52,23 @@ fn host<B: Backend>(t: FloatTensor<B>) -> Vec<f32> {
         .expect("converted to f32")
 }
 
+/// Runs `f` on the values of an NdArray tensor: borrowed in place when it is contiguous f32 (no
+/// copy — the table is shared with the parameter and autodiff, so `into_data` would copy it
+/// element by element), copied otherwise.
+fn with_host<R>(t: &FloatTensor<NdArray>, f: impl FnOnce(&[f32]) -> R) -> R {
+    if let burn::backend::ndarray::NdArrayTensor::F32(storage) = t
+        && let Some(values) = storage.view().as_slice()
+    {
+        return f(values);
+    }
+    f(&host::<NdArray>(t.clone()))
+}
+
 impl HashEncodeBackend for NdArray {
     fn hash_encode(u: FloatTensor<Self>, tables: FloatTensor<Self>, config: HashGridConfig) -> FloatTensor<Self> {
         let device = u.device();
         let n = u.shape()[0];
-        let out = cpu::encode(&config, &host::<Self>(u), &host::<Self>(tables));
+        let out = with_host(&u, |u| with_host(&tables, |t| cpu::encode(&config, u, t)));
         Self::float_from_data(TensorData::new(out, [n, config.output_dim()]), &device)
     }
 
@@ -69,7 +81,8 @@ impl HashEncodeBackend for NdArray {
         let device = u.device();
         let n = u.shape()[0];
         let tshape = tables.shape();
-        let (gu, gt) = cpu::encode_backward(&config, &host::<Self>(u), &host::<Self>(tables), &host::<Self>(grad));
+        let (gu, gt) =
+            with_host(&u, |u| with_host(&tables, |t| with_host(&grad, |g| cpu::encode_backward(&config, u, t, g))));
         HashGrads {
             u: Self::float_from_data(TensorData::new(gu, [n, 3]), &device),
             tables: Self::float_from_data(TensorData::new(gt, tshape), &device),
