@@ -49,7 +49,7 @@ fn dice(a: &[bool], b: &[bool]) -> f64 {
 
 /// Scores every candidate level: the solid `density ≥ level` (joined with `keep`, e.g. the
 /// prior's voxels, when given) is projected into the views and compared with their vessel masks
-/// (`mask_threshold` as the N2 seeds). Returns the scores, best last-resort first on ties.
+/// (`mask_threshold` as the N2 seeds). Returns one score per candidate level, in order.
 pub fn score_levels(
     volume: &Volume<f32>,
     views: &[ConeBeamView],
