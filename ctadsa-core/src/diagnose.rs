@@ -30,7 +30,7 @@ use crate::mesh::io::read_mesh;
 use crate::metrics::nearest_distances;
 use crate::model::ScaleBounds;
 use crate::surface_distance::SurfaceIndex;
-use crate::surface_metrics::RECALL_SLACK_MM;
+use crate::surface_metrics::{RECALL_SLACK_MM, centreline_points};
 use crate::train::{prepare_views, run_working_box};
 use crate::tree::Segment;
 use crate::volume::Grid;
@@ -110,24 +110,13 @@ fn explained_elsewhere(view: &ConeBeamView, p: DVec3, inp: &DiagnoseInputs) -> b
 /// Classifies the missing centreline (points every ≤ 0.1 mm).
 pub fn diagnose(missing: &[Segment], inp: &DiagnoseInputs) -> LossBreakdown {
     let masks: Vec<Mask> = inp.images.iter().map(|i| vessel_mask(i, inp.mask_threshold)).collect();
-    let mut points = Vec::new();
-    for s in missing {
-        let len = s.length_mm();
-        if !(len > 0.0) {
-            continue;
-        }
-        let steps = (len / 0.1).ceil().clamp(1.0, 1e6) as usize;
-        for k in 0..steps {
-            let t = (k as f64 + 0.5) / steps as f64;
-            let r = s.start_radius_mm + t * (s.end_radius_mm - s.start_radius_mm);
-            points.push((s.start_mm.lerp(s.end_mm, t), r, len / steps as f64));
-        }
-    }
-    let centres: Vec<DVec3> = points.iter().map(|p| p.0).collect();
+    let points = centreline_points(missing);
+    let centres: Vec<DVec3> = points.iter().map(|p| p.position_mm).collect();
     let to_seed = nearest_distances(&centres, inp.seeds);
     let to_completed = inp.completed.distances(&centres);
     let mut out = LossBreakdown::default();
-    for (k, &(p, r, w)) in points.iter().enumerate() {
+    for (k, cp) in points.iter().enumerate() {
+        let (p, r, w) = (cp.position_mm, cp.radius_mm, cp.length_mm);
         let px: Vec<Option<usize>> = inp.views.iter().map(|v| pixel(v, p)).collect();
         let class = if to_completed[k] <= r + RECALL_SLACK_MM {
             &mut out.found

@@ -123,12 +123,19 @@ fn fraction(values: &[f64], keep: impl Fn(f64) -> bool) -> f64 {
     values.iter().filter(|&&d| keep(d)).count() as f64 / values.len() as f64
 }
 
-/// Fraction of the centreline length of `segments` whose points lie within their radius +
-/// [`RECALL_SLACK_MM`] of `surface` (points every ≤ 0.1 mm, radius interpolated along each
-/// segment; NaN for no length).
-pub fn centreline_recall(surface: &SurfaceIndex, segments: &[Segment]) -> f64 {
+/// A point of a centreline: position (mm), vessel radius there (mm), and the length (mm) it
+/// stands for.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CentrelinePoint {
+    pub position_mm: DVec3,
+    pub radius_mm: f64,
+    pub length_mm: f64,
+}
+
+/// Points every ≤ 0.1 mm along `segments` (at the middle of equal pieces), radius interpolated
+/// along each segment.
+pub fn centreline_points(segments: &[Segment]) -> Vec<CentrelinePoint> {
     let mut points = Vec::new();
-    let mut weights = Vec::new();
     for s in segments {
         let len = s.length_mm();
         if !(len > 0.0) {
@@ -137,18 +144,27 @@ pub fn centreline_recall(surface: &SurfaceIndex, segments: &[Segment]) -> f64 {
         let steps = (len / 0.1).ceil().clamp(1.0, 1e6) as usize;
         for k in 0..steps {
             let t = (k as f64 + 0.5) / steps as f64;
-            points.push((s.start_mm.lerp(s.end_mm, t), s.start_radius_mm + t * (s.end_radius_mm - s.start_radius_mm)));
-            weights.push(len / steps as f64);
+            points.push(CentrelinePoint {
+                position_mm: s.start_mm.lerp(s.end_mm, t),
+                radius_mm: s.start_radius_mm + t * (s.end_radius_mm - s.start_radius_mm),
+                length_mm: len / steps as f64,
+            });
         }
     }
-    let total: f64 = weights.iter().sum();
+    points
+}
+
+/// Fraction of the centreline length of `segments` whose points lie within their radius +
+/// [`RECALL_SLACK_MM`] of `surface` ([`centreline_points`]; NaN for no length).
+pub fn centreline_recall(surface: &SurfaceIndex, segments: &[Segment]) -> f64 {
+    let points = centreline_points(segments);
+    let total: f64 = points.iter().map(|p| p.length_mm).sum();
     if !(total > 0.0) {
         return f64::NAN;
     }
-    let centres: Vec<DVec3> = points.iter().map(|p| p.0).collect();
-    let d = surface.distances(&centres);
+    let d = surface.distances(&points.iter().map(|p| p.position_mm).collect::<Vec<_>>());
     let covered: f64 =
-        points.iter().zip(&d).zip(&weights).filter(|((p, d), _)| **d <= p.1 + RECALL_SLACK_MM).map(|(_, w)| w).sum();
+        points.iter().zip(&d).filter(|(p, d)| **d <= p.radius_mm + RECALL_SLACK_MM).map(|(p, _)| p.length_mm).sum();
     covered / total
 }
 
