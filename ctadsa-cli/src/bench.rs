@@ -435,6 +435,9 @@ pub fn plastimatch_drr(mha: &Path, geom: &TigreGeometry, work: &Path) -> Result<
 }
 
 fn bench_projector(voxels: usize, size: u32) -> Result<()> {
+    if !(8..=1024).contains(&voxels) || !(8..=4096).contains(&size) {
+        bail!("--voxels must be in 8..=1024 and --size in 8..=4096, got {voxels} and {size}");
+    }
     let tree =
         ProceduralTree { terminals: 300, domain_mm: [60.0, 60.0, 50.0], seed: 7, ..Default::default() }.generate()?;
     let h = 130.0 / voxels as f64;

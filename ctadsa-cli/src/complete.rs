@@ -6,6 +6,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
+use burn::tensor::Device;
 use clap::Args;
 use ctadsa_core::case::Case;
 use ctadsa_core::config::Config;
@@ -40,6 +41,69 @@ pub struct CompleteArgs {
     /// Resume from the latest checkpoint in the output folder (or the given checkpoint).
     #[arg(long, num_args = 0..=1, default_missing_value = "latest")]
     resume: Option<String>,
+    /// Start afresh in an output folder that holds a run (its checkpoints and summary go).
+    #[arg(long, conflicts_with = "resume")]
+    overwrite: bool,
+}
+
+/// How a run starts in its output folder.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Start<'a> {
+    /// A new run; refused when the folder holds one.
+    Fresh,
+    /// A new run; an earlier run's checkpoints and summary in the folder are removed first.
+    Overwrite,
+    /// From `"latest"` (the newest usable checkpoint in the folder) or a checkpoint folder.
+    Resume(&'a str),
+}
+
+/// Whether `out` holds (part of) a run: a summary or a checkpoint.
+fn holds_run(out: &Path) -> bool {
+    out.join("summary.json").exists() || !Trainer::checkpoints(&out.join("checkpoints")).is_empty()
+}
+
+/// The trainer for `start`: `Resume("latest")` falls back to older checkpoints when the newest
+/// cannot be read (e.g. a file cut short by a kill), saying so.
+fn start_trainer(case: &Case, cfg: &Config, device: Device, out: &Path, start: Start) -> Result<Trainer> {
+    let ck_dir = out.join("checkpoints");
+    match start {
+        Start::Fresh if holds_run(out) => {
+            bail!("{} already holds a run: pass --resume to continue it or --overwrite to start again", out.display())
+        }
+        Start::Fresh => Ok(Trainer::new(case, cfg.clone(), device)?),
+        Start::Overwrite => {
+            for stale in [out.join("summary.json"), ck_dir.clone()] {
+                if stale.is_dir() {
+                    std::fs::remove_dir_all(&stale).with_context(|| format!("cannot remove {}", stale.display()))?;
+                } else if stale.exists() {
+                    std::fs::remove_file(&stale).with_context(|| format!("cannot remove {}", stale.display()))?;
+                }
+            }
+            Ok(Trainer::new(case, cfg.clone(), device)?)
+        }
+        Start::Resume("latest") => {
+            let cks = Trainer::checkpoints(&ck_dir);
+            let mut first_error = None;
+            for ck in &cks {
+                eprintln!("resuming from {}", ck.display());
+                match Trainer::resume(case, cfg.clone(), device.clone(), ck) {
+                    Ok(t) => return Ok(t),
+                    Err(e) => {
+                        eprintln!("warning: checkpoint {} is unusable: {e}", ck.display());
+                        first_error.get_or_insert(e);
+                    }
+                }
+            }
+            match first_error {
+                Some(e) => Err(e).context(format!("no usable checkpoint in {}", ck_dir.display())),
+                None => bail!("no checkpoint in {}", ck_dir.display()),
+            }
+        }
+        Start::Resume(path) => {
+            eprintln!("resuming from {path}");
+            Ok(Trainer::resume(case, cfg.clone(), device, Path::new(path))?)
+        }
+    }
 }
 
 /// Installs a handler for Ctrl-C (SIGINT), SIGTERM (what `timeout`, SLURM and `docker stop`
@@ -59,23 +123,12 @@ pub fn run_completion(
     cfg: Config,
     backend: BackendKind,
     out: &Path,
-    resume: Option<&str>,
+    start: Start,
 ) -> Result<Option<RunSummary>> {
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     let device = backend.device()?.autodiff();
     let ck_dir = out.join("checkpoints");
-    let mut trainer = match resume {
-        Some(which) => {
-            let ck = if which == "latest" {
-                Trainer::latest_checkpoint(&ck_dir).with_context(|| format!("no checkpoint in {}", ck_dir.display()))?
-            } else {
-                PathBuf::from(which)
-            };
-            eprintln!("resuming from {}", ck.display());
-            Trainer::resume(case, cfg.clone(), device, &ck)?
-        }
-        None => Trainer::new(case, cfg.clone(), device)?,
-    };
+    let mut trainer = start_trainer(case, &cfg, device, out, start)?;
     eprintln!(
         "{} views of {}×{} px, {} Gaussians ({} on the prior, {} from the images), {} iterations",
         trainer.views.len(),
@@ -181,7 +234,12 @@ pub fn run(args: CompleteArgs) -> Result<()> {
     let case = Case::load(&args.case)?;
     let cfg = Config::load(args.config.as_deref(), &args.overrides)?;
     let out = args.out.clone().unwrap_or_else(|| PathBuf::from("runs").join(&case.file.name));
-    match run_completion(&case, cfg, args.backend, &out, args.resume.as_deref())? {
+    let start = match (&args.resume, args.overwrite) {
+        (Some(which), _) => Start::Resume(which),
+        (None, true) => Start::Overwrite,
+        (None, false) => Start::Fresh,
+    };
+    match run_completion(&case, cfg, args.backend, &out, start)? {
         Some(s) => {
             print_summary(&s, &out);
             Ok(())
@@ -224,7 +282,7 @@ pub fn demo(args: DemoArgs) -> Result<()> {
     let case = Case::load(&case_dir)?;
     let cfg = Config::from_toml_str(QUICK_TOML, "configs/quick.toml", &args.overrides)?;
     let out = args.out.join("run");
-    match run_completion(&case, cfg, args.backend, &out, None)? {
+    match run_completion(&case, cfg, args.backend, &out, Start::Overwrite)? {
         Some(s) => {
             print_summary(&s, &out);
             println!("\ndemo finished in {:.0} s (synthesis + completion + outputs)", started.elapsed().as_secs_f64());

@@ -16,7 +16,7 @@ use ctadsa_core::plot::{PALETTE, Series, line_plot};
 use serde::{Deserialize, Serialize};
 
 use crate::backend::BackendKind;
-use crate::complete::run_completion;
+use crate::complete::{Start, run_completion};
 
 #[derive(Args)]
 pub struct ExperimentArgs {
@@ -141,7 +141,7 @@ fn run_cell(cell: &Cell, matrix_dir: &Path, common: &[String], backend: BackendK
     let cfg = Config::load(Some(&matrix_dir.join(&cell.method.config)), &overrides)
         .with_context(|| format!("method {}", cell.method.name))?;
     let start = Instant::now();
-    let summary = run_completion(&case, cfg, backend, &cell.dir, None)?.context("interrupted")?;
+    let summary = run_completion(&case, cfg, backend, &cell.dir, Start::Overwrite)?.context("interrupted")?;
     let mut metrics = BTreeMap::new();
     let m = summary.metrics.as_ref();
     put(&mut metrics, "", m.map(|m| &m.overall));

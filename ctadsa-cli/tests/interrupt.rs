@@ -66,3 +66,74 @@ fn sigterm_saves_a_checkpoint_exits_non_zero_and_resume_finishes() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("resuming from"));
     assert!(run.join("summary.json").exists() && run.join("mesh.obj").exists());
 }
+
+/// A folder holding a run is not overwritten by accident, a resume with other settings is
+/// refused, and a checkpoint cut short (a kill while it was written by an older version, a full
+/// disk) is skipped for the previous one.
+#[test]
+fn run_folder_is_protected_and_resume_falls_back_to_a_good_checkpoint() {
+    let (case, run) = (tmp("fold-case"), tmp("fold-run"));
+    let bin = env!("CARGO_BIN_EXE_ctadsa");
+    let synth = Command::new(bin)
+        .args(["synth", "--out", case.to_str().unwrap(), "--terminals", "16", "--detector-px", "96"])
+        .args(["--binning", "2", "--voxel-mm", "0.6"])
+        .output()
+        .unwrap();
+    assert!(synth.status.success(), "{}", String::from_utf8_lossy(&synth.stderr));
+    let config = concat!(env!("CARGO_MANIFEST_DIR"), "/../configs/quick.toml");
+    let complete = |iterations: usize, extra: &[&str]| {
+        let mut c = Command::new(bin);
+        c.args(["complete", "--case", case.to_str().unwrap(), "--config", config, "--out", run.to_str().unwrap()]);
+        for s in [
+            format!("run.iterations={iterations}"),
+            "run.checkpoint_every=2".into(),
+            "init.n1=300".into(),
+            "init.n2=200".into(),
+            "densify.enabled=false".into(),
+            "output.metric_samples=2000".into(),
+        ] {
+            c.args(["--set", &s]);
+        }
+        c.args(extra).env("RUST_BACKTRACE", "0").output().unwrap()
+    };
+    let first = complete(4, &[]);
+    assert!(first.status.success(), "{}", String::from_utf8_lossy(&first.stderr));
+    let summary = std::fs::read(run.join("summary.json")).unwrap();
+
+    let again = complete(4, &[]);
+    let err = String::from_utf8_lossy(&again.stderr);
+    assert!(!again.status.success() && err.contains("already holds a run") && err.contains("--overwrite"), "{err}");
+    assert_eq!(std::fs::read(run.join("summary.json")).unwrap(), summary, "the finished run was touched");
+
+    let other = complete(6, &["--resume", "--set", "init.n1=400"]);
+    let err = String::from_utf8_lossy(&other.stderr);
+    assert!(!other.status.success() && err.contains("init.n1") && err.contains("other settings"), "{err}");
+
+    // Cut the newest checkpoint's model short: the resume warns and continues from the one before.
+    let newest = run.join("checkpoints/ckpt-0000004/model.bpk");
+    let bytes = std::fs::read(&newest).unwrap();
+    std::fs::write(&newest, &bytes[..bytes.len() / 3]).unwrap();
+    let resumed = complete(6, &["--resume"]);
+    let err = String::from_utf8_lossy(&resumed.stderr);
+    assert!(resumed.status.success(), "{err}");
+    assert!(err.contains("ckpt-0000004") && err.contains("unusable") && err.contains("ckpt-0000002"), "{err}");
+    let state: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(run.join("checkpoints/ckpt-0000006/state.json")).unwrap()).unwrap();
+    assert_eq!(state["iteration"], 6);
+
+    // A checkpoint whose state claims more Gaussians than its model file holds is refused.
+    let state_path = run.join("checkpoints/ckpt-0000006/state.json");
+    let text = std::fs::read_to_string(&state_path).unwrap();
+    let mut v: serde_json::Value = serde_json::from_str(&text).unwrap();
+    v["gaussians"] = serde_json::json!(1_000_000_000_000u64);
+    std::fs::write(&state_path, serde_json::to_string(&v).unwrap()).unwrap();
+    let ck = run.join("checkpoints/ckpt-0000006");
+    let bad = complete(8, &["--resume", ck.to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&bad.stderr);
+    assert!(!bad.status.success() && !err.contains("panicked") && err.contains("state.json"), "{err}");
+
+    let fresh = complete(2, &["--overwrite"]);
+    assert!(fresh.status.success(), "{}", String::from_utf8_lossy(&fresh.stderr));
+    assert!(!run.join("checkpoints/ckpt-0000006").exists(), "--overwrite leaves the old run's checkpoints");
+    assert!(run.join("checkpoints/ckpt-0000002").exists());
+}

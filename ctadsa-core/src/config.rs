@@ -200,6 +200,13 @@ impl Default for LossConfig {
     }
 }
 
+/// The most Gaussians (or seeds, or samples) a config may ask for: far beyond the paper's
+/// 500,000 cap, and small enough to fail with a message rather than an allocation abort.
+pub const MAX_GAUSSIANS: usize = 20_000_000;
+
+/// The widest field MLP a config may ask for.
+pub const MAX_HIDDEN: usize = 4096;
+
 /// `[densify]`
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -434,7 +441,22 @@ impl Config {
         check(self.model.initial_density >= 0.0, "model.initial_density", "must be ≥ 0")?;
         self.field.encoding.validate().map_err(|e| CoreError::invalid(format!("config `field.encoding`: {e}")))?;
         check((1..=4).contains(&self.field.hidden_layers), "field.hidden_layers", "must be in 1..=4")?;
-        check(self.field.hidden >= 1, "field.hidden", "must be ≥ 1")?;
+        check((1..=MAX_HIDDEN).contains(&self.field.hidden), "field.hidden", "must be in 1..=4096")?;
+        for (k, n) in [
+            ("init.n1", self.init.n1),
+            ("init.n2", self.init.n2),
+            ("densify.max_gaussians", self.densify.max_gaussians),
+            ("loss.pa_samples", self.loss.pa_samples),
+        ] {
+            check(n <= MAX_GAUSSIANS, k, "must be at most 20,000,000")?;
+        }
+        check(self.run.iterations <= 10_000_000, "run.iterations", "must be at most 10,000,000")?;
+        check(
+            self.output.voxel_mm.is_finite() && self.output.voxel_mm >= 0.0,
+            "output.voxel_mm",
+            "must be ≥ 0 (0 = the case's voxel)",
+        )?;
+        check(self.init.n2_voxel_mm.is_finite(), "init.n2_voxel_mm", "must be finite")?;
         for (k, r) in [
             ("optim.lr_means", self.optim.lr_means),
             ("optim.lr_scales", self.optim.lr_scales),

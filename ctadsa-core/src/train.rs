@@ -67,12 +67,60 @@ struct CheckpointState {
     /// The working box of the run (absent in checkpoints of older versions).
     #[serde(default)]
     working_box: Option<BoxMm>,
+    /// The settings that shape the trajectory ([`training_settings`]); a resume with other
+    /// settings is refused (absent in checkpoints of older versions).
+    #[serde(default)]
+    training_settings: Option<String>,
+}
+
+/// The configuration less what may change on resume (`[output]`, `run.iterations`,
+/// `run.checkpoint_every`), as TOML.
+fn training_settings(cfg: &Config) -> String {
+    let mut c = cfg.clone();
+    c.output = Default::default();
+    c.run.iterations = 0;
+    c.run.checkpoint_every = 0;
+    c.to_toml()
+}
+
+/// `section.key` paths whose values differ between two TOML documents.
+fn toml_differences(a: &str, b: &str) -> Vec<String> {
+    fn flatten(prefix: &str, v: &toml::Value, out: &mut std::collections::BTreeMap<String, String>) {
+        match v {
+            toml::Value::Table(t) => {
+                for (k, v) in t {
+                    let key = if prefix.is_empty() { k.clone() } else { format!("{prefix}.{k}") };
+                    flatten(&key, v, out);
+                }
+            }
+            other => {
+                out.insert(prefix.to_string(), other.to_string());
+            }
+        }
+    }
+    let parse = |s: &str| {
+        let mut out = std::collections::BTreeMap::new();
+        if let Ok(v) = toml::from_str::<toml::Table>(s) {
+            flatten("", &toml::Value::Table(v), &mut out);
+        }
+        out
+    };
+    let (a, b) = (parse(a), parse(b));
+    let keys: std::collections::BTreeSet<&String> = a.keys().chain(b.keys()).collect();
+    keys.into_iter().filter(|k| a.get(*k) != b.get(*k)).cloned().collect()
 }
 
 /// The case's images and views after the run's view selection and binning.
 pub fn prepare_views(case: &Case, cfg: &Config) -> Result<(ViewSet, Vec<Image>)> {
     let case = if cfg.run.views.is_empty() { case.clone() } else { case.select_views(&cfg.run.views)? };
     let b = cfg.run.image_binning.max(1);
+    let (w, h) = case.views.image_size();
+    if b > w.min(h) {
+        return Err(CoreError::invalid(format!(
+            "config `run.image_binning` = {b} is larger than the {w} × {h} px detector of {}",
+            case.dir.display()
+        )));
+    }
     let views: Vec<ConeBeamView> =
         case.views.views().iter().map(|v| v.binned(b)).collect::<std::result::Result<_, _>>()?;
     let images: Vec<Image> = case.images.iter().map(|img| bin_image(img, b)).collect();
@@ -451,8 +499,14 @@ impl Trainer {
     }
 
     /// Writes a checkpoint folder (model, optimizer, state); returns its path.
+    /// The folder is written under a temporary name and renamed when complete, so a kill while
+    /// saving leaves the previous checkpoints as they were.
     pub fn save_checkpoint(&self, dir: &Path) -> Result<PathBuf> {
-        let ck = dir.join(format!("ckpt-{:07}", self.iteration));
+        let done = dir.join(format!("ckpt-{:07}", self.iteration));
+        let ck = dir.join(format!(".ckpt-{:07}.partial-{}", self.iteration, std::process::id()));
+        if ck.exists() {
+            std::fs::remove_dir_all(&ck).map_err(|e| CoreError::io(&ck, e))?;
+        }
         std::fs::create_dir_all(&ck).map_err(|e| CoreError::io(&ck, e))?;
         self.model()
             .clone()
@@ -475,10 +529,15 @@ impl Trainer {
             n2: self.n2,
             history: self.history.clone(),
             working_box: Some(self.working_box),
+            training_settings: Some(training_settings(&self.cfg)),
         };
         let state_path = ck.join("state.json");
         write_file(&state_path, to_json(&state, &state_path)?.as_bytes())?;
-        Ok(ck)
+        if done.exists() {
+            std::fs::remove_dir_all(&done).map_err(|e| CoreError::io(&done, e))?;
+        }
+        std::fs::rename(&ck, &done).map_err(|e| CoreError::io(&done, e))?;
+        Ok(done)
     }
 
     /// Restores a run from a checkpoint folder written by [`Trainer::save_checkpoint`], with the
@@ -488,6 +547,19 @@ impl Trainer {
         let state_path = checkpoint.join("state.json");
         let state: CheckpointState = serde_json::from_slice(&read_file(&state_path)?)
             .map_err(|e| CoreError::format(&state_path, format!("invalid checkpoint state: {e}")))?;
+        if let Some(saved) = &state.training_settings {
+            let differ = toml_differences(saved, &training_settings(&cfg));
+            if !differ.is_empty() {
+                return Err(CoreError::format(
+                    &state_path,
+                    format!(
+                        "this checkpoint belongs to a run with other settings ({}); resume with the run's \
+                         config.toml, or start a new run",
+                        differ.join(", ")
+                    ),
+                ));
+            }
+        }
         let (views, images) = prepare_views(case, &cfg)?;
         let prior = case.prior_mesh()?;
         let working_box = match state.working_box {
@@ -497,6 +569,15 @@ impl Trainer {
         let voxel_mm = case.file.volume.voxel_mm;
         let bounds = ScaleBounds::from_voxel(voxel_mm, cfg.model.scale_min_voxels, cfg.model.scale_max_voxels);
         let n = state.gaussians;
+        let model_path = checkpoint.join("model.bpk");
+        let model_bytes = std::fs::metadata(&model_path).map_err(|e| CoreError::io(&model_path, e))?.len();
+        // Ten f32 per Gaussian (mean, raw scale, rotation) must be in the model file.
+        if n == 0 || n > crate::config::MAX_GAUSSIANS || model_bytes < 40 * n as u64 {
+            return Err(CoreError::format(
+                &state_path,
+                format!("`gaussians` = {n} does not fit the checkpoint's model.bpk ({model_bytes} bytes)"),
+            ));
+        }
         let skeleton_init =
             GaussianInit { means: vec![0.0; 3 * n], raw_scales: vec![0.0; 3 * n], rotations: vec![0.0; 4 * n] };
         let size = working_box.size_mm();
@@ -509,7 +590,6 @@ impl Trainer {
             &device,
         );
         let skeleton = GaussianModel::new(&skeleton_init, field, bounds, &device);
-        let model_path = checkpoint.join("model.bpk");
         let model = skeleton
             .try_load_file(&model_path)
             .map_err(|e| CoreError::format(&model_path, format!("cannot load model (same config?): {e:?}")))?;
@@ -551,16 +631,21 @@ impl Trainer {
 
     /// The latest checkpoint folder under `dir`, if any.
     pub fn latest_checkpoint(dir: &Path) -> Option<PathBuf> {
-        let mut cks: Vec<PathBuf> = std::fs::read_dir(dir)
-            .ok()?
+        Self::checkpoints(dir).into_iter().next()
+    }
+
+    /// The complete checkpoint folders under `dir` (`ckpt-` + iteration), newest first.
+    pub fn checkpoints(dir: &Path) -> Vec<PathBuf> {
+        let Ok(entries) = std::fs::read_dir(dir) else { return Vec::new() };
+        let mut cks: Vec<(usize, PathBuf)> = entries
             .filter_map(|e| e.ok().map(|e| e.path()))
-            .filter(|p| {
-                p.file_name().and_then(|n| n.to_str()).is_some_and(|n| n.starts_with("ckpt-"))
-                    && p.join("state.json").exists()
+            .filter_map(|p| {
+                let n: usize = p.file_name()?.to_str()?.strip_prefix("ckpt-")?.parse().ok()?;
+                p.join("state.json").exists().then_some((n, p))
             })
             .collect();
         cks.sort();
-        cks.pop()
+        cks.into_iter().rev().map(|(_, p)| p).collect()
     }
 
     /// Host copy of the Gaussians: `(means, scales, rotations, densities)` row-major.

@@ -12,7 +12,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{CoreError, Result, check_file_name, read_file, write_file};
 use crate::mesh::{TriMesh, io::read_mesh};
-use crate::volume::BoxMm;
+use crate::volume::{BoxMm, Grid};
 use images::{Image, read_image};
 
 /// The value of `format` in every case file.
@@ -243,10 +243,23 @@ impl CaseFile {
         for v in &file.views {
             check_file_name(&v.name, "view name").map_err(|e| CoreError::format(path, e))?;
         }
+        for v in &file.views {
+            if let Some(s) = v.png_scale
+                && !(s.is_finite() && s > 0.0)
+            {
+                return Err(CoreError::format(
+                    path,
+                    format!("view `{}`: `png_scale` must be a positive number, got {s}", v.name),
+                ));
+            }
+        }
         let b = file.volume.bounds();
-        if !(0..3).all(|a| b.max_mm[a] > b.min_mm[a]) || !(file.volume.voxel_mm > 0.0) {
+        let finite = b.min_mm.iter().chain(&b.max_mm).all(|v| v.is_finite());
+        if !finite || !(0..3).all(|a| b.max_mm[a] > b.min_mm[a]) || !(file.volume.voxel_mm > 0.0) {
             return Err(CoreError::format(path, format!("degenerate working volume {:?}", file.volume)));
         }
+        Grid::covering(&b, file.volume.voxel_mm)
+            .map_err(|e| CoreError::format(path, format!("`volume.voxel_mm` {}: {e}", file.volume.voxel_mm)))?;
         Ok(file)
     }
 

@@ -112,6 +112,15 @@ fn flip(image: &Image, horizontal: bool, vertical: bool) -> Image {
 /// Mask, subtraction, frame choice, MIP, orientation and binning of one run.
 pub fn dsa_view(run: &XaRun, name: &str, o: &DsaOptions) -> Result<DsaView> {
     let path = &run.path;
+    if !(o.curve_fraction > 0.0 && o.curve_fraction <= 1.0) {
+        return Err(CoreError::invalid(format!("curve fraction must be in (0, 1], got {}", o.curve_fraction)));
+    }
+    if o.binning < 1 || o.binning > run.columns.min(run.rows) {
+        return Err(CoreError::format(
+            path,
+            format!("binning {} does not fit the {} × {} px images", o.binning, run.columns, run.rows),
+        ));
+    }
     let n = run.frames.len();
     let mut notes = vec![format!("view `{name}` from {}", path.display())];
     let masks: Vec<usize> = match (&o.mask_frames, o.subtraction) {

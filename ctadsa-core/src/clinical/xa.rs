@@ -75,6 +75,9 @@ fn element_int(obj: &DefaultDicomObject, path: &Path, tag: Tag) -> Result<Option
     }
 }
 
+/// The most frames a run may claim (a 30 fps run of five minutes is 9,000).
+pub const MAX_FRAMES: i64 = 10_000;
+
 /// Reads a DSA run. Errors name the file and every missing tag.
 pub fn read_xa_run(path: &Path) -> Result<XaRun> {
     if !path.exists() {
@@ -131,6 +134,18 @@ pub fn read_xa_run(path: &Path) -> Result<XaRun> {
     if rows < 1 || columns < 1 || n_frames < 1 {
         return Err(CoreError::format(path, format!("degenerate image: {columns} × {rows} pixels, {n_frames} frames")));
     }
+    if rows > 65_535 || columns > 65_535 {
+        return Err(CoreError::format(
+            path,
+            format!("Rows (0028,0010) × Columns (0028,0011) = {rows} × {columns}: each must be at most 65535"),
+        ));
+    }
+    if n_frames > MAX_FRAMES {
+        return Err(CoreError::format(
+            path,
+            format!("Number of Frames (0028,0008) is {n_frames}; at most {MAX_FRAMES} are read"),
+        ));
+    }
     if samples != 1 {
         return Err(CoreError::format(path, format!("{samples} samples per pixel; DSA runs are greyscale (1)")));
     }
@@ -144,8 +159,9 @@ pub fn read_xa_run(path: &Path) -> Result<XaRun> {
         .map_err(|e| CoreError::format(path, format!("Pixel Data is not native (encapsulated?): {e}")))?;
     let per_frame = (rows * columns) as usize;
     let bytes_per = (bits / 8) as usize;
-    let needed = per_frame * n_frames as usize * bytes_per;
-    if pixels.len() < needed {
+    // Bounded above: 65535² × 10⁴ × 2 bytes fits in u64 and in usize on 64-bit targets.
+    let needed = (per_frame as u64).saturating_mul(n_frames as u64).saturating_mul(bytes_per as u64);
+    if (pixels.len() as u64) < needed {
         return Err(CoreError::format(
             path,
             format!(
@@ -172,7 +188,7 @@ pub fn read_xa_run(path: &Path) -> Result<XaRun> {
         .map_err(|e| CoreError::format(path, e.to_string()))?
         .to_multi_float64()
         .map_err(|e| CoreError::format(path, format!("Imager Pixel Spacing (0018,1164): {e}")))?;
-    if spacing.len() != 2 || spacing.iter().any(|s| !(*s > 0.0)) {
+    if spacing.len() != 2 || spacing.iter().any(|s| !(s.is_finite() && *s > 0.0)) {
         return Err(CoreError::format(
             path,
             format!("Imager Pixel Spacing (0018,1164) must be two positive numbers, got {spacing:?}"),
@@ -189,7 +205,16 @@ pub fn read_xa_run(path: &Path) -> Result<XaRun> {
         // (0018,1164) is row spacing \ column spacing.
         pixel_mm: [spacing[1], spacing[0]],
     };
-    if !(geometry.dso_mm > 0.0 && geometry.dsd_mm > geometry.dso_mm) {
+    if !(geometry.primary_deg.is_finite() && geometry.secondary_deg.is_finite()) {
+        return Err(CoreError::format(
+            path,
+            format!(
+                "Positioner Primary/Secondary Angle (0018,1510)/(0018,1511) must be finite, got {} / {}",
+                geometry.primary_deg, geometry.secondary_deg
+            ),
+        ));
+    }
+    if !(geometry.dso_mm > 0.0 && geometry.dsd_mm > geometry.dso_mm && geometry.dsd_mm.is_finite()) {
         return Err(CoreError::format(
             path,
             format!(

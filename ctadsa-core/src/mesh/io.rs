@@ -172,6 +172,9 @@ fn read_binary(bytes: &[u8], at: &mut usize, t: &str) -> std::result::Result<f64
     })
 }
 
+/// Longest list property a PLY row may hold (a face's vertices).
+const MAX_PLY_LIST: usize = 1024;
+
 /// Parses a PLY mesh (ASCII or binary little-endian) with `vertex` x/y/z and `face`
 /// `vertex_indices` (or `vertex_index`).
 pub fn parse_ply(bytes: &[u8]) -> std::result::Result<TriMesh, String> {
@@ -210,6 +213,18 @@ pub fn parse_ply(bytes: &[u8]) -> std::result::Result<TriMesh, String> {
         other => return Err(format!("unsupported PLY format `{other}`")),
     };
     let body = &bytes[end + 11..];
+    // Every value takes at least one byte: a header claiming more rows than the data can hold
+    // is refused before any row is read (and an element without properties holds no rows).
+    let mut values = 0u128;
+    for (name, count, props) in &elements {
+        if *count > 0 && props.is_empty() {
+            return Err(format!("element `{name}` has {count} rows but no property"));
+        }
+        values += *count as u128 * props.len() as u128;
+    }
+    if values > body.len() as u128 {
+        return Err(format!("the header claims {values} values but the data holds {} bytes", body.len()));
+    }
     let text = if ascii { std::str::from_utf8(body).map_err(|_| "PLY ASCII body is not text")? } else { "" };
     let mut tokens = text.split_whitespace();
     let mut at = 0usize;
@@ -238,7 +253,11 @@ pub fn parse_ply(bytes: &[u8]) -> std::result::Result<TriMesh, String> {
                         }
                     }
                     Prop::List(ct, it, pn) => {
-                        let n = next(ct)? as usize;
+                        let count = next(ct)?;
+                        if !(0.0..=MAX_PLY_LIST as f64).contains(&count) {
+                            return Err(format!("a `{pn}` list of {count} entries (at most {MAX_PLY_LIST})"));
+                        }
+                        let n = count as usize;
                         let mut idx = Vec::with_capacity(n);
                         for _ in 0..n {
                             idx.push(next(it)?);

@@ -104,7 +104,57 @@ pub struct PoseErrorSpec {
     pub seed: u64,
 }
 
+/// Upper bound of [`SynthConfig::supersample`] (16³ sub-samples per voxel).
+pub const MAX_SUPERSAMPLE: usize = 16;
+
 impl SynthConfig {
+    /// Range checks of the settings; the error names the setting.
+    pub fn validate(&self) -> Result<()> {
+        let bad = |what: &str, problem: String| Err(CoreError::invalid(format!("{what}: {problem}")));
+        if !(self.contrast_per_mm.is_finite() && self.contrast_per_mm > 0.0) {
+            return bad("contrast", format!("must be positive, got {}", self.contrast_per_mm));
+        }
+        if !(1..=MAX_SUPERSAMPLE).contains(&self.supersample) {
+            return bad("supersample", format!("must be in 1..={MAX_SUPERSAMPLE}, got {}", self.supersample));
+        }
+        if let Some(v) = self.voxel_mm
+            && !(v.is_finite() && v > 0.0)
+        {
+            return bad("voxel size", format!("must be a positive number of mm, got {v}"));
+        }
+        let native = self.detector_px.unwrap_or(self.geometry.geometry(0.0, 0.0, 1).detector_px[0]);
+        if self.binning < 1 || self.binning > native {
+            return bad(
+                "binning",
+                format!("must be in 1..={native} (the detector's pixels per side), got {}", self.binning),
+            );
+        }
+        if let Some(n) = self.noise.poisson_photons
+            && !(n.is_finite() && n > 0.0)
+        {
+            return bad("noise photons", format!("must be a positive number, got {n}"));
+        }
+        if let Some(sd) = self.noise.gaussian_sigma
+            && !(sd.is_finite() && sd >= 0.0)
+        {
+            return bad("noise sigma", format!("must be ≥ 0, got {sd}"));
+        }
+        if let Some(mu) = self.noise.attenuation
+            && !(mu.is_finite() && mu > 0.0)
+        {
+            return bad("noise attenuation", format!("must be positive, got {mu}"));
+        }
+        if !self.rotation_deg.iter().chain(&self.translation_mm).all(|v| v.is_finite()) {
+            return bad("rotation/translation", "must be finite".into());
+        }
+        if let Some(e) = self.pose_error
+            && !(e.translation_mm.is_finite() && e.rotation_deg.is_finite())
+        {
+            return bad("pose error", "must be finite".into());
+        }
+        Ok(())
+    }
+
     /// A small case for tests and quick checks: a procedural tree of 24 terminals in a
     /// 40 × 40 × 32 mm box, three views of 96 × 96 pixels of 1 mm (192 px binned by 2), 0.4 mm
     /// voxels, prior = vessels ≥ 1.5 mm.
@@ -177,6 +227,13 @@ struct Rasterised {
 }
 
 fn from_tree(mut tree: VesselTree, cfg: &SynthConfig, source: String, warnings: Vec<String>) -> Result<Rasterised> {
+    if tree.segments().is_empty() {
+        let why = warnings.first().map_or(String::new(), |w| format!("; first problem: {w}"));
+        return Err(CoreError::invalid(format!(
+            "the tree has no vessel segment ({} nodes, none with a usable parent){why}",
+            tree.nodes.len()
+        )));
+    }
     tree.centre_on_isocentre();
     tree.transform(rotation(cfg.rotation_deg), DVec3::from(cfg.translation_mm));
     let (lo, hi) = tree.bounds_mm().ok_or_else(|| CoreError::invalid("the tree is empty"))?;
@@ -265,9 +322,7 @@ pub fn synthesize(cfg: &SynthConfig, out: &Path, progress: &mut dyn FnMut(&str))
     if cfg.priors.is_empty() {
         return Err(CoreError::invalid("at least one prior threshold is needed"));
     }
-    if !(cfg.contrast_per_mm.is_finite() && cfg.contrast_per_mm > 0.0) {
-        return Err(CoreError::invalid(format!("contrast must be positive, got {}", cfg.contrast_per_mm)));
-    }
+    cfg.validate()?;
     progress("anatomy");
     let r = match &cfg.anatomy {
         Anatomy::Procedural(p) => from_tree(
@@ -293,7 +348,15 @@ pub fn synthesize(cfg: &SynthConfig, out: &Path, progress: &mut dyn FnMut(&str))
     progress("meshes");
     let complete_mesh = extract_isosurface(&r.complete, 0.5);
     if complete_mesh.is_empty() {
-        return Err(CoreError::invalid("the anatomy produced no surface at this voxel size"));
+        let thickest = r.tree.as_ref().map_or(String::new(), |t| {
+            let r = t.nodes.iter().map(|n| n.radius_mm).fold(0.0, f64::max);
+            format!(" (thickest vessel radius {r} mm)")
+        });
+        let voxel = grid.spacing_mm[0];
+        return Err(CoreError::invalid(format!(
+            "the anatomy produced no surface at {voxel} mm voxels{thickest}: its vessels are thinner than a \
+             voxel; set a smaller voxel size"
+        )));
     }
     write_mesh(&out.join("gt/complete.obj"), &complete_mesh)?;
     write_nifti(&out.join("gt/occupancy.nii.gz"), &r.complete, "ctadsa vessel occupancy")?;

@@ -25,9 +25,14 @@ pub struct SwcFile {
     pub warnings: Vec<SwcWarning>,
 }
 
+/// Largest radius a node may have (mm): no cerebral vessel comes close.
+pub const MAX_RADIUS_MM: f64 = 100.0;
+/// Largest coordinate a node may have (mm): a head fits in ±300 mm of any sensible origin.
+pub const MAX_COORDINATE_MM: f64 = 100_000.0;
+
 /// Reads an SWC file. Fails (naming the file) if it cannot be read or holds no usable node;
-/// malformed rows (wrong column count, unparsable numbers, non-positive or non-finite radius,
-/// duplicate ids, unknown parents) are skipped and listed in [`SwcFile::warnings`].
+/// malformed rows (wrong column count, unparsable numbers, radius outside (0, 100] mm,
+/// coordinates beyond ±10⁵ mm, duplicate ids, unknown parents) are skipped and listed in [`SwcFile::warnings`].
 pub fn read_swc(path: &Path) -> Result<SwcFile> {
     let bytes = read_file(path)?;
     let text = String::from_utf8_lossy(&bytes);
@@ -76,8 +81,14 @@ pub fn parse_swc(text: &str) -> std::result::Result<SwcFile, String> {
                     .ok_or_else(|| format!("{what} `{s}` is not a finite number"))
             };
             let radius = num(cols[5], "radius")?;
-            if radius <= 0.0 {
-                return Err(format!("radius {radius} mm is not positive"));
+            if radius <= 0.0 || radius > MAX_RADIUS_MM {
+                return Err(format!("radius {radius} mm is not in (0, {MAX_RADIUS_MM}] mm"));
+            }
+            for (c, axis) in cols[2..5].iter().zip(["x", "y", "z"]) {
+                let v = num(c, axis)?;
+                if v.abs() > MAX_COORDINATE_MM {
+                    return Err(format!("{axis} = {v:.3e} mm is farther than {MAX_COORDINATE_MM} mm from the origin"));
+                }
             }
             Ok(Row {
                 id: int(cols[0], "id")?,
@@ -186,7 +197,7 @@ mod tests {
         assert_eq!(lines, vec![4, 5, 6, 7, 8], "{:?}", f.warnings);
         assert!(f.warnings[0].problem.contains("7 columns"));
         assert!(f.warnings[1].problem.contains("`x`"));
-        assert!(f.warnings[2].problem.contains("not positive"));
+        assert!(f.warnings[2].problem.contains("is not in (0, 100] mm"));
         assert!(f.warnings[3].problem.contains("duplicate id 2"));
         assert!(f.warnings[4].problem.contains("parent 99"));
         assert_eq!(f.tree.nodes[1].parent, Some(0));

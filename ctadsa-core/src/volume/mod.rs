@@ -43,6 +43,10 @@ pub struct Grid {
     pub origin_mm: [f64; 3],
 }
 
+/// The most voxels a grid may have (2^29: 2 GiB as `f32`); larger grids come from input sizes
+/// or voxel sizes that are off by orders of magnitude.
+pub const MAX_GRID_VOXELS: usize = 1 << 29;
+
 impl Grid {
     /// A grid of isotropic `voxel_mm` voxels covering `bounds` (rounded up to whole voxels,
     /// centred on the box).
@@ -54,7 +58,23 @@ impl Grid {
         if !size.iter().all(|s| s.is_finite() && *s >= 0.0) {
             return Err(CoreError::invalid(format!("degenerate box {bounds:?}")));
         }
-        let dims = size.map(|s| ((s / voxel_mm).ceil() as usize).max(1));
+        let dims_f = size.map(|s| (s / voxel_mm).ceil().max(1.0));
+        let total = dims_f.iter().product::<f64>();
+        if total > MAX_GRID_VOXELS as f64 {
+            let n = |x: f64| if x < 1e7 { format!("{x:.0}") } else { format!("{x:.2e}") };
+            let mm = |x: f64| if x < 1e6 { format!("{x:.1}") } else { format!("{x:.2e}") };
+            return Err(CoreError::invalid(format!(
+                "a grid of {} × {} × {} voxels ({total:.2e}) would cover {} × {} × {} mm at {voxel_mm} mm \
+                 (at most {MAX_GRID_VOXELS}): raise the voxel size",
+                n(dims_f[0]),
+                n(dims_f[1]),
+                n(dims_f[2]),
+                mm(size[0]),
+                mm(size[1]),
+                mm(size[2])
+            )));
+        }
+        let dims = dims_f.map(|d| d as usize);
         let origin_mm = [0, 1, 2].map(|a| {
             let centre = 0.5 * (bounds.min_mm[a] + bounds.max_mm[a]);
             centre - 0.5 * dims[a] as f64 * voxel_mm

@@ -13,6 +13,52 @@ use nifti::{IntoNdArray, NiftiHeader, NiftiObject, ReaderOptions, writer::Writer
 use super::{Grid, Volume};
 use crate::error::{CoreError, Result};
 
+/// NIfTI datatype codes of scalar voxels (u8, i16, i32, f32, f64, i8, u16, u32, i64, u64).
+const SCALAR_DATATYPES: [i16; 10] = [2, 4, 8, 16, 64, 256, 512, 768, 1024, 1280];
+
+/// Checks the header fields this reader relies on before any voxel is read; the error names
+/// the field.
+fn check_header(path: &Path, h: &NiftiHeader) -> Result<[usize; 3]> {
+    let bad = |field: &str, problem: String| CoreError::format(path, format!("NIfTI header `{field}`: {problem}"));
+    if !SCALAR_DATATYPES.contains(&h.datatype) {
+        return Err(bad("datatype", format!("{} is not a scalar voxel type this reader takes", h.datatype)));
+    }
+    let ndim = h.dim[0];
+    if !(3..=7).contains(&ndim) {
+        return Err(bad("dim[0]", format!("{ndim} dimensions; expected a 3-D volume")));
+    }
+    let dims = &h.dim[1..=ndim as usize];
+    if dims.iter().any(|&d| d < 1) || dims[3..].iter().any(|&d| d != 1) {
+        return Err(bad("dim", format!("{dims:?}; expected a 3-D volume of at least one voxel per axis")));
+    }
+    let n = [dims[0], dims[1], dims[2]].map(|d| d as usize);
+    let total = n.iter().map(|&d| d as f64).product::<f64>();
+    if total > super::MAX_GRID_VOXELS as f64 {
+        return Err(bad("dim", format!("{n:?} is {total:.2e} voxels, more than {}", super::MAX_GRID_VOXELS)));
+    }
+    let finite = |v: &[f32]| v.iter().all(|x| x.is_finite());
+    if h.sform_code > 0 {
+        if !(finite(&h.srow_x) && finite(&h.srow_y) && finite(&h.srow_z)) {
+            return Err(bad("srow_x/y/z", "not finite".into()));
+        }
+    } else {
+        if !h.pixdim[1..4].iter().all(|v| v.is_finite() && *v != 0.0) {
+            return Err(bad("pixdim", format!("voxel sizes {:?} must be finite and non-zero", &h.pixdim[1..4])));
+        }
+        if h.qform_code > 0 {
+            let q = [h.quatern_b, h.quatern_c, h.quatern_d];
+            let norm2: f32 = q.iter().map(|v| v * v).sum();
+            if !finite(&q) || !finite(&[h.quatern_x, h.quatern_y, h.quatern_z]) || norm2 > 1.0 + 1e-4 {
+                return Err(bad(
+                    "quatern_b/c/d",
+                    format!("{q:?} is not the vector part of a unit quaternion (b² + c² + d² = {norm2})"),
+                ));
+            }
+        }
+    }
+    Ok(n)
+}
+
 fn header_affine(h: &NiftiHeader) -> DMat4 {
     let row = |r: [f32; 4]| DVec4::new(r[0] as f64, r[1] as f64, r[2] as f64, r[3] as f64);
     if h.sform_code > 0 {
@@ -52,15 +98,13 @@ pub fn read_nifti(path: &Path) -> Result<Volume<f32>> {
     if !path.exists() {
         return Err(CoreError::io(path, std::io::Error::from(std::io::ErrorKind::NotFound)));
     }
+    let header = NiftiHeader::from_file(path)
+        .map_err(|e| CoreError::format(path, format!("not a readable NIfTI-1 header: {e}")))?;
+    let dims = check_header(path, &header)?;
     let obj = ReaderOptions::new()
         .read_file(path)
         .map_err(|e| CoreError::format(path, format!("not a readable NIfTI-1 file: {e}")))?;
     let header = obj.header().clone();
-    let ndim = header.dim[0] as usize;
-    let dims: Vec<usize> = header.dim[1..=ndim.min(7)].iter().map(|&d| d as usize).collect();
-    if dims.len() < 3 || dims[3..].iter().any(|&d| d != 1) {
-        return Err(CoreError::format(path, format!("expected a 3-D volume, found dimensions {dims:?}")));
-    }
     let array = obj
         .into_volume()
         .into_ndarray::<f32>()

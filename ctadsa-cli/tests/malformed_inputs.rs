@@ -1,0 +1,328 @@
+//! A corpus of malformed inputs, one per kind of input every command reads (SWC, NIfTI, OBJ,
+//! case.json, TOML and `--set`, DICOM XA, CLI flags, checkpoints), made in the test. Each must be
+//! refused with a non-zero exit, no panic or abort, a message naming the file or key, and no
+//! file written outside the command's output folder.
+
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::OnceLock;
+
+const BIN: &str = env!("CARGO_BIN_EXE_ctadsa");
+
+fn quick_config() -> String {
+    concat!(env!("CARGO_MANIFEST_DIR"), "/../configs/quick.toml").to_string()
+}
+
+/// A fresh folder for one test.
+fn sandbox(name: &str) -> PathBuf {
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("malformed-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// A small valid case, synthesised once per test process.
+fn valid_case() -> &'static Path {
+    static CASE: OnceLock<PathBuf> = OnceLock::new();
+    CASE.get_or_init(|| {
+        let dir = sandbox("valid").join("case");
+        let out = Command::new(BIN)
+            .args(["synth", "--out", dir.to_str().unwrap(), "--terminals", "16", "--detector-px", "96"])
+            .args(["--binning", "2", "--voxel-mm", "0.6"])
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        dir
+    })
+}
+
+fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for e in std::fs::read_dir(from).unwrap() {
+        let e = e.unwrap();
+        let target = to.join(e.file_name());
+        if e.file_type().unwrap().is_dir() {
+            copy_dir(&e.path(), &target);
+        } else {
+            std::fs::copy(e.path(), &target).unwrap();
+        }
+    }
+}
+
+/// Every file path under `dir`.
+fn files_under(dir: &Path) -> BTreeSet<PathBuf> {
+    let mut out = BTreeSet::new();
+    if let Ok(entries) = std::fs::read_dir(dir) {
+        for e in entries.flatten() {
+            let p = e.path();
+            if p.is_dir() {
+                out.extend(files_under(&p));
+            }
+            out.insert(p);
+        }
+    }
+    out
+}
+
+/// Runs `args` in `dir` and checks a clean refusal whose message contains every `expect`;
+/// files may appear only under `dir/out`.
+fn refused(dir: &Path, args: &[&str], expect: &[&str]) {
+    let before = files_under(dir);
+    let out = Command::new(BIN).current_dir(dir).args(args).env("RUST_BACKTRACE", "0").output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    let what = format!("`ctadsa {}`", args.join(" "));
+    assert!(out.status.code().is_some(), "{what} was killed by a signal (abort?): {stderr}");
+    assert_ne!(out.status.code(), Some(0), "{what} accepted a malformed input: {stderr}");
+    assert!(!stderr.contains("panicked"), "{what} panicked: {stderr}");
+    for e in expect {
+        assert!(stderr.contains(e), "{what}: the message does not name `{e}`:\n{stderr}");
+    }
+    let allowed = dir.join("out");
+    for f in files_under(dir).difference(&before) {
+        assert!(f.starts_with(&allowed), "{what} wrote {} outside its output folder", f.display());
+    }
+}
+
+#[test]
+fn malformed_swc_trees_are_refused_naming_the_file() {
+    let dir = sandbox("swc");
+    let corpus: &[(&str, &str)] = &[
+        ("huge-coordinate", "1 1 1e300 0 0 1 -1\n2 1 0 0 0 1 1\n"),
+        ("huge-radius", "1 1 0 0 0 1e30 -1\n2 1 1 0 0 1e30 1\n"),
+        ("nan", "1 1 nan 0 0 1 -1\n2 1 1 0 0 1 1\n"),
+        ("orphans", "1 1 0 0 0 1 5\n2 1 1 0 0 1 7\n"),
+        ("empty", ""),
+        ("duplicate-ids", "1 1 0 0 0 1 -1\n1 1 1 0 0 1 1\n"),
+        ("negative-radius", "1 1 0 0 0 -1 -1\n2 1 1 0 0 -1 1\n"),
+        ("too-few-columns", "1 1 0 0 0 1\n2 1 1 0 0 1\n"),
+        ("binary", "\u{0}\u{1}\u{2}\u{ff}\u{fe}garbage\u{7}\n\u{0}"),
+    ];
+    for (name, text) in corpus {
+        let file = format!("{name}.swc");
+        std::fs::write(dir.join(&file), text).unwrap();
+        refused(&dir, &["synth", "--tree", &file, "--out", "out/c"], &[&file]);
+    }
+    // Vessels far thinner than the voxel: the message says so instead of blaming the file.
+    std::fs::write(dir.join("thin.swc"), "1 1 0 0 0 1e-9 -1\n2 1 100 0 0 1e-9 1\n").unwrap();
+    refused(&dir, &["synth", "--tree", "thin.swc", "--out", "out/c"], &["thinner than a voxel"]);
+}
+
+#[test]
+fn out_of_range_synth_flags_are_refused_naming_the_flag() {
+    let dir = sandbox("synth-flags");
+    let base = ["synth", "--out", "out/c", "--terminals", "8", "--detector-px", "64"];
+    for (flag, value, expect) in [
+        ("--supersample", "100000", "supersample"),
+        ("--voxel-mm", "1e-4", "voxel"),
+        ("--noise-photons", "0", "noise photons"),
+        ("--binning", "1000", "binning"),
+        ("--contrast", "nan", "contrast"),
+        ("--noise-sigma=-1", "", "noise sigma"),
+    ] {
+        let mut args = base.to_vec();
+        args.extend([flag, value].into_iter().filter(|a| !a.is_empty()));
+        refused(&dir, &args, &[expect]);
+    }
+    refused(&dir, &["bench", "projector", "--voxels", "0"], &["--voxels"]);
+}
+
+#[test]
+fn out_of_range_config_values_are_refused_naming_the_key() {
+    let dir = sandbox("config");
+    let case = valid_case().to_str().unwrap().to_string();
+    let config = quick_config();
+    for (set, key) in [
+        ("init.n1=2000000000", "init.n1"),
+        ("field.hidden=100000000", "field.hidden"),
+        ("output.metric_samples=0", "output.metric_samples"),
+        ("run.image_binning=10000", "run.image_binning"),
+        ("densify.max_gaussians=1000000000000", "densify.max_gaussians"),
+        ("output.voxel_mm=-1", "output.voxel_mm"),
+        ("init.mask_threshold=nan", "init.mask_threshold"),
+        ("run.iterationz=5", "iterationz"),
+        ("field.encoding.log2_table=40", "log2_table"),
+    ] {
+        refused(&dir, &["complete", "--case", &case, "--config", &config, "--out", "out/run", "--set", set], &[key]);
+    }
+    std::fs::write(dir.join("bad.toml"), "[run]\niterations = \"many\"\n").unwrap();
+    refused(&dir, &["complete", "--case", &case, "--config", "bad.toml", "--out", "out/run"], &["bad.toml"]);
+}
+
+/// Edits the valid case's `case.json` with `edit` into `dir/name`.
+fn edited_case(dir: &Path, name: &str, edit: impl Fn(&mut serde_json::Value)) -> String {
+    let case = dir.join(name);
+    copy_dir(valid_case(), &case);
+    let path = case.join("case.json");
+    let mut json: serde_json::Value = serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+    edit(&mut json);
+    std::fs::write(&path, serde_json::to_vec_pretty(&json).unwrap()).unwrap();
+    name.to_string()
+}
+
+#[test]
+fn malformed_case_files_are_refused_and_nothing_escapes() {
+    let dir = sandbox("case");
+    let config = quick_config();
+    let cases = [
+        edited_case(&dir, "escape-name", |j| j["name"] = "../../escaped".into()),
+        edited_case(&dir, "escape-view", |j| j["views"][0]["name"] = "../v".into()),
+        edited_case(&dir, "absolute-view", |j| j["views"][1]["name"] = "/tmp/v".into()),
+        edited_case(&dir, "negative-png-scale", |j| j["views"][0]["png_scale"] = (-1.0).into()),
+        edited_case(&dir, "tiny-voxel", |j| j["volume"]["voxel_mm"] = 1e-6.into()),
+        edited_case(&dir, "huge-box", |j| j["volume"]["max_mm"] = serde_json::json!([1e300, 1e300, 1e300])),
+        edited_case(&dir, "wrong-version", |j| j["version"] = 99.into()),
+        edited_case(&dir, "no-views", |j| j["views"] = serde_json::json!([])),
+        edited_case(&dir, "bad-geometry", |j| j["views"][0]["geometry"]["dso_mm"] = 0.0.into()),
+    ];
+    for case in &cases {
+        refused(&dir, &["complete", "--case", case, "--config", &config, "--out", "out/run"], &["case.json"]);
+    }
+    let cut = dir.join("truncated");
+    copy_dir(valid_case(), &cut);
+    let text = std::fs::read(cut.join("case.json")).unwrap();
+    std::fs::write(cut.join("case.json"), &text[..text.len() / 2]).unwrap();
+    refused(&dir, &["complete", "--case", "truncated", "--config", &config, "--out", "out/run"], &["case.json"]);
+    // A view image that is not an image.
+    let img = dir.join("bad-image");
+    copy_dir(valid_case(), &img);
+    std::fs::write(img.join("views/ap.tiff"), b"not a tiff").unwrap();
+    refused(&dir, &["complete", "--case", "bad-image", "--config", &config, "--out", "out/run"], &["ap.tiff"]);
+}
+
+#[test]
+fn malformed_meshes_are_refused_naming_the_file() {
+    let dir = sandbox("obj");
+    let corpus: &[(&str, &str)] = &[
+        ("index-out-of-range", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n"),
+        ("nan-vertex", "v nan 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"),
+        ("no-faces", "v 0 0 0\nv 1 0 0\n"),
+        ("garbage", "\u{0}\u{1}this is not a mesh\n"),
+    ];
+    let gt = valid_case().join("gt/complete.obj");
+    for (name, text) in corpus {
+        let file = format!("{name}.obj");
+        std::fs::write(dir.join(&file), text).unwrap();
+        refused(&dir, &["eval", "--pred", &file, "--gt", gt.to_str().unwrap()], &[&file]);
+    }
+    refused(
+        &dir,
+        &["eval", "--pred", gt.to_str().unwrap(), "--gt", gt.to_str().unwrap(), "--samples", "2e9"],
+        &["--samples"],
+    );
+}
+
+/// A NIfTI-1 single file (`.nii`): header fields as given, `data` after the 352-byte offset.
+fn nifti(
+    dims: [i16; 3],
+    datatype: i16,
+    bitpix: i16,
+    pixdim: [f32; 3],
+    quatern: Option<[f32; 3]>,
+    data: &[u8],
+) -> Vec<u8> {
+    let mut h = vec![0u8; 352];
+    let put = |h: &mut Vec<u8>, at: usize, b: &[u8]| h[at..at + b.len()].copy_from_slice(b);
+    put(&mut h, 0, &348i32.to_le_bytes());
+    let dim = [3i16, dims[0], dims[1], dims[2], 1, 1, 1, 1];
+    for (k, d) in dim.iter().enumerate() {
+        put(&mut h, 40 + 2 * k, &d.to_le_bytes());
+    }
+    put(&mut h, 70, &datatype.to_le_bytes());
+    put(&mut h, 72, &bitpix.to_le_bytes());
+    let pd = [1.0f32, pixdim[0], pixdim[1], pixdim[2], 1.0, 1.0, 1.0, 1.0];
+    for (k, p) in pd.iter().enumerate() {
+        put(&mut h, 76 + 4 * k, &p.to_le_bytes());
+    }
+    put(&mut h, 108, &352f32.to_le_bytes());
+    put(&mut h, 112, &1f32.to_le_bytes());
+    if let Some(q) = quatern {
+        put(&mut h, 252, &1i16.to_le_bytes());
+        for (k, v) in q.iter().enumerate() {
+            put(&mut h, 256 + 4 * k, &v.to_le_bytes());
+        }
+    }
+    put(&mut h, 344, b"n+1\0");
+    h.extend_from_slice(data);
+    h
+}
+
+#[test]
+fn malformed_nifti_volumes_are_refused_naming_the_field() {
+    let dir = sandbox("nifti");
+    let n = 4usize;
+    let labels: Vec<u8> = (0..n * n * n).map(|i| u8::from(i % 3 == 0)).collect();
+    let rgb: Vec<u8> = labels.iter().flat_map(|&v| [v, v, v]).collect();
+    let corpus: Vec<(&str, Vec<u8>, &str)> = vec![
+        ("rgb24", nifti([4; 3], 128, 24, [1.0; 3], None, &rgb), "datatype"),
+        ("nan-pixdim", nifti([4; 3], 2, 8, [f32::NAN, 1.0, 1.0], None, &labels), "pixdim"),
+        ("zero-pixdim", nifti([4; 3], 2, 8, [0.0, 1.0, 1.0], None, &labels), "pixdim"),
+        ("non-unit-quaternion", nifti([4; 3], 2, 8, [1.0; 3], Some([3.0, 0.0, 0.0]), &labels), "quatern"),
+        ("huge-dims", nifti([32767; 3], 2, 8, [1.0; 3], None, &labels), "dim"),
+        ("negative-dims", nifti([4, -4, 4], 2, 8, [1.0; 3], None, &labels), "dim"),
+        ("truncated", nifti([4; 3], 2, 8, [1.0; 3], None, &labels[..10]), "truncated"),
+    ];
+    for (name, bytes, field) in &corpus {
+        let file = format!("{name}.nii");
+        std::fs::write(dir.join(&file), bytes).unwrap();
+        let expect: &[&str] = if *name == "truncated" { &[&file] } else { &[&file, field] };
+        refused(&dir, &["prior", "--labels", &file, "--out", "out/prior.obj"], expect);
+    }
+}
+
+/// Replaces the value of an explicit-VR little-endian element `(group, element)` of 2-byte
+/// length in a DICOM file.
+fn patch_element(bytes: &mut [u8], group: u16, element: u16, value: [u8; 2]) {
+    let tag = [group.to_le_bytes(), element.to_le_bytes()].concat();
+    let at = bytes[132..].windows(4).position(|w| w == tag.as_slice()).expect("tag present") + 132;
+    assert_eq!(&bytes[at + 6..at + 8], &[2, 0], "2-byte value");
+    bytes[at + 8..at + 10].copy_from_slice(&value);
+}
+
+#[test]
+fn malformed_dicom_runs_are_refused_naming_the_tag() {
+    let dir = sandbox("dicom");
+    let exported = Command::new(BIN)
+        .args(["export-dicom", "--case", valid_case().to_str().unwrap(), "--out"])
+        .arg(dir.join("xa"))
+        .output()
+        .unwrap();
+    assert!(exported.status.success(), "{}", String::from_utf8_lossy(&exported.stderr));
+    let good = std::fs::read(dir.join("xa/ap.dcm")).unwrap();
+    let mut huge = good.clone();
+    patch_element(&mut huge, 0x0028, 0x0010, [0xff, 0xff]); // Rows
+    patch_element(&mut huge, 0x0028, 0x0011, [0xff, 0xff]); // Columns
+    patch_element(&mut huge, 0x0028, 0x0008, *b"99"); // Number of Frames
+    std::fs::write(dir.join("huge.dcm"), &huge).unwrap();
+    refused(&dir, &["import-dsa", "--run", "huge.dcm", "--out", "out/case"], &["huge.dcm", "Pixel Data"]);
+    let mut frames = good.clone();
+    patch_element(&mut frames, 0x0028, 0x0008, *b"x "); // Number of Frames
+    std::fs::write(dir.join("frames.dcm"), &frames).unwrap();
+    refused(&dir, &["import-dsa", "--run", "frames.dcm", "--out", "out/case"], &["frames.dcm", "Number of Frames"]);
+    std::fs::write(dir.join("cut.dcm"), &good[..good.len() / 2]).unwrap();
+    refused(&dir, &["import-dsa", "--run", "cut.dcm", "--out", "out/case"], &["cut.dcm"]);
+    std::fs::write(dir.join("not.dcm"), b"hello").unwrap();
+    refused(&dir, &["import-dsa", "--run", "not.dcm", "--out", "out/case"], &["not.dcm"]);
+    std::fs::copy(dir.join("xa/ap.dcm"), dir.join("ok.dcm")).unwrap();
+    refused(
+        &dir,
+        &["import-dsa", "--run", "ok.dcm", "--out", "out/case", "--curve-fraction", "NaN"],
+        &["curve fraction"],
+    );
+    refused(&dir, &["import-dsa", "--run", "ok.dcm", "--out", "out/case", "--binning", "100000"], &["binning"]);
+}
+
+#[test]
+fn malformed_experiment_names_do_not_escape() {
+    let dir = sandbox("experiment");
+    let config = quick_config();
+    std::fs::write(
+        dir.join("matrix.toml"),
+        format!(
+            "views = [[0, 1]]\npriors = []\nset = []\n[[methods]]\nname = \"../../escaped\"\nconfig = \"{config}\"\n"
+        ),
+    )
+    .unwrap();
+    let case = valid_case().to_str().unwrap().to_string();
+    refused(&dir, &["experiment", "--matrix", "matrix.toml", "--cases", &case, "--out", "out/m"], &["matrix.toml"]);
+}
