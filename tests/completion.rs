@@ -8,7 +8,7 @@ use std::sync::OnceLock;
 
 use burn::tensor::Device;
 use ctadsa_core::case::Case;
-use ctadsa_core::config::Config;
+use ctadsa_core::config::{AdamImpl, Config};
 use ctadsa_core::export::{RunSummary, write_outputs};
 use ctadsa_core::synth::{SynthConfig, synthesize};
 use ctadsa_core::train::Trainer;
@@ -150,6 +150,30 @@ fn assert_resume_is_exact(cfg: Config, at: usize, tag: &str) {
 #[test]
 fn resumed_run_continues_the_same_trajectory() {
     assert_resume_is_exact(tiny_config(30), 15, "plain");
+}
+
+/// The fused Adam (default) against burn's Adam (`optim.adam = "burn"`, the reference) over a
+/// 50-step training run with densification: the same losses and Gaussians, bit for bit.
+#[test]
+fn fused_adam_training_matches_burns_adam() {
+    let case = tiny_case();
+    let trajectory = |adam: AdamImpl| {
+        let mut cfg = tiny_config(50);
+        cfg.optim.adam = adam;
+        cfg.densify.enabled = true;
+        cfg.densify.from = 10;
+        cfg.densify.until = 40;
+        cfg.densify.every = 15;
+        cfg.densify.grad_threshold = 1e-6;
+        let mut t = Trainer::new(case, cfg, Device::ndarray().autodiff()).unwrap();
+        while t.iteration < 50 {
+            t.step().unwrap();
+        }
+        (t.history.iter().map(|h| (h.loss, h.gaussians)).collect::<Vec<_>>(), t.host_gaussians())
+    };
+    let (fused, burn) = (trajectory(AdamImpl::Fused), trajectory(AdamImpl::Burn));
+    assert_eq!(fused.0, burn.0, "losses and Gaussian counts per step");
+    assert_eq!(fused.1, burn.1, "final Gaussians");
 }
 
 /// Densification end to end: Gaussians are cloned, split and pruned while the loss keeps

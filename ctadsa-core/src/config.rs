@@ -148,6 +148,18 @@ pub struct OptimConfig {
     pub epsilon: f64,
     /// Adam weight decay on the field (reference 5e-5).
     pub field_weight_decay: f64,
+    /// Which Adam: `fused` (one pass per parameter, [`crate::optim::FusedAdam`]) or `burn`
+    /// (burn's `Adam`, the reference); the same update rule and checkpoint format.
+    pub adam: AdamImpl,
+}
+
+/// Implementation of the Adam step.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum AdamImpl {
+    #[default]
+    Fused,
+    Burn,
 }
 
 impl Default for OptimConfig {
@@ -159,6 +171,7 @@ impl Default for OptimConfig {
             lr_field: [1e-3, 1e-4],
             epsilon: 1e-15,
             field_weight_decay: 5e-5,
+            adam: AdamImpl::Fused,
         }
     }
 }

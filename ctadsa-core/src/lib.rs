@@ -20,6 +20,8 @@ pub mod loss;
 pub mod mesh;
 pub mod metrics;
 pub mod model;
+pub mod ndarray_host;
+pub mod optim;
 pub mod plot;
 pub mod pose;
 pub mod projector;

@@ -19,7 +19,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::case::Case;
 use crate::case::images::Image;
-use crate::config::{Config, WorkingBoxSource};
+use crate::config::{AdamImpl, Config, WorkingBoxSource};
 use crate::densify::{self, DensifyStats};
 use crate::error::{CoreError, Result, read_file, to_json, write_file};
 use crate::init::initialise;
@@ -27,6 +27,7 @@ use crate::loss::{LossTargets, PriorAnchor};
 use crate::mesh::TriMesh;
 use crate::mesh::sample::sample_surface;
 use crate::model::{GaussianInit, GaussianModel, ScaleBounds, host_vec};
+use crate::optim::FusedAdam;
 use crate::pose::{PoseCorrection, ViewPoses};
 use crate::volume::BoxMm;
 use crate::working_box::working_box_from_inputs;
@@ -213,13 +214,19 @@ pub struct Trainer {
 
 fn new_optimizer(cfg: &Config) -> Result<ModuleOptimizer> {
     let eps = cfg.optim.epsilon as f32;
-    let field_adam = AdamConfig::new()
-        .with_epsilon(eps)
-        .with_weight_decay(
-            (cfg.optim.field_weight_decay > 0.0).then(|| WeightDecayConfig::new(cfg.optim.field_weight_decay as f32)),
-        )
-        .build();
-    Ok(AdamConfig::new().with_epsilon(eps).init().with_group(ParamGroup::from_predicate("field"), field_adam, None))
+    let decay = (cfg.optim.field_weight_decay > 0.0).then_some(cfg.optim.field_weight_decay as f32);
+    let field = ParamGroup::from_predicate("field");
+    Ok(match cfg.optim.adam {
+        AdamImpl::Fused => ModuleOptimizer::from(FusedAdam::new(eps)).with_group(
+            field,
+            FusedAdam::new(eps).with_weight_decay(decay),
+            None,
+        ),
+        AdamImpl::Burn => {
+            let field_adam = AdamConfig::new().with_epsilon(eps).with_weight_decay(decay.map(WeightDecayConfig::new));
+            AdamConfig::new().with_epsilon(eps).init().with_group(field, field_adam.build(), None)
+        }
+    })
 }
 
 /// `init · (final / init)^(t / T)` (linear when one end is 0).

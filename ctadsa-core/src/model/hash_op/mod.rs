@@ -14,12 +14,13 @@ use burn::backend::autodiff::grads::Gradients;
 use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
 use burn::backend::ops::FloatTensorOps;
 use burn::backend::{
-    Autodiff, AutodiffBackend, Backend, Dispatch, ExtensionType, NdArray, TensorMetadata, backend_extension, read_sync,
+    Autodiff, AutodiffBackend, Backend, Dispatch, ExtensionType, NdArray, TensorMetadata, backend_extension,
     tensor::FloatTensor,
 };
 use burn::tensor::{Tensor, TensorData};
 
 use super::hash_grid::HashGridConfig;
+use crate::ndarray_host::with_host;
 
 /// Gradients of the encoding's inputs.
 #[derive(ExtensionType)]
@@ -42,26 +43,6 @@ pub trait HashEncodeBackend: Backend {
         grad: FloatTensor<Self>,
         config: HashGridConfig,
     ) -> HashGrads<Self>;
-}
-
-fn host<B: Backend>(t: FloatTensor<B>) -> Vec<f32> {
-    read_sync(B::float_into_data(t))
-        .expect("reading a CPU tensor cannot fail")
-        .convert::<f32>()
-        .to_vec::<f32>()
-        .expect("converted to f32")
-}
-
-/// Runs `f` on the values of an NdArray tensor: borrowed in place when it is contiguous f32 (no
-/// copy — the table is shared with the parameter and autodiff, so `into_data` would copy it
-/// element by element), copied otherwise.
-fn with_host<R>(t: &FloatTensor<NdArray>, f: impl FnOnce(&[f32]) -> R) -> R {
-    if let burn::backend::ndarray::NdArrayTensor::F32(storage) = t
-        && let Some(values) = storage.view().as_slice()
-    {
-        return f(values);
-    }
-    f(&host::<NdArray>(t.clone()))
 }
 
 impl HashEncodeBackend for NdArray {
