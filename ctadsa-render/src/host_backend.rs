@@ -14,7 +14,7 @@ fn to_vec<B: Backend>(t: FloatTensor<B>) -> Vec<f32> {
     read_sync(B::float_into_data(t))
         .expect("reading a CPU tensor cannot fail")
         .convert::<f32>()
-        .to_vec::<f32>()
+        .try_to_vec::<f32>()
         .expect("converted to f32")
 }
 

@@ -1,9 +1,10 @@
 #![doc = include_str!("../README.md")]
 // `!(x >= y)` is our NaN-rejecting comparison idiom (NaN fails it); keep it.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
-#![allow(deprecated)] // burn-ndarray is deprecated in burn 0.22 in favour of burn-flex.
 
 mod autodiff;
+/// The CPU kernels on host slices (benchmarks and tests); the op is the supported API.
+#[doc(hidden)]
 pub mod cpu;
 mod error;
 pub mod geometry;
@@ -12,6 +13,8 @@ pub mod gpu;
 mod grid;
 mod host_backend;
 pub mod ops;
+/// f64 reference implementations: the test oracle of the kernels.
+#[doc(hidden)]
 pub mod reference;
 mod view_params;
 
@@ -151,7 +154,7 @@ impl Gaussians {
     pub fn validate(&self) -> Result<(), RenderError> {
         let n = self.check_shapes()?;
         let read = |t: TensorData| -> Result<Vec<f32>, RenderError> {
-            t.convert::<f32>().to_vec::<f32>().map_err(|e| RenderError::Readback(format!("{e:?}")))
+            t.convert::<f32>().try_to_vec::<f32>().map_err(|e| RenderError::Readback(format!("{e:?}")))
         };
         let means = read(self.means.clone().into_data())?;
         let scales = read(self.scales.clone().into_data())?;

@@ -59,18 +59,6 @@ pub fn sandwich_diag(m: &[f32; 9], d: [f32; 3]) -> Sym3 {
     [e(0, 0), e(0, 1), e(0, 2), e(1, 1), e(1, 2), e(2, 2)]
 }
 
-/// Row-major product `a · b` of 3 × 3 matrices.
-#[inline]
-pub fn matmul3(a: &[f32; 9], b: &[f32; 9]) -> [f32; 9] {
-    let mut out = [0.0; 9];
-    for i in 0..3 {
-        for j in 0..3 {
-            out[3 * i + j] = a[3 * i] * b[j] + a[3 * i + 1] * b[3 + j] + a[3 * i + 2] * b[6 + j];
-        }
-    }
-    out
-}
-
 /// The clamped scales of a Gaussian and whether each component was inside the clamp range
 /// (outside it the gradient is zero); `None` for a non-positive or non-finite scale.
 #[inline]
@@ -122,12 +110,6 @@ pub struct Projected {
 }
 
 impl Projected {
-    /// Whether the footprint covers at least one pixel.
-    #[inline]
-    pub fn visible(&self) -> bool {
-        self.col_min <= self.col_max && self.row_min <= self.row_max
-    }
-
     /// Whether a pixel with `N = quad` and `α = alpha` sees the Gaussian: its ray passes within
     /// `k` Mahalanobis units (`N/α ≤ k²`), or the footprint is unbounded.
     #[inline(always)]
