@@ -367,7 +367,8 @@ impl Trainer {
             );
             (self.views.select(&idx)?, self.targets.select(it))
         };
-        let model = self.model.take().expect("model present between steps");
+        // Borrowed until the optimizer step, so that no error path can lose the model.
+        let model = self.model.as_ref().expect("model present between steps");
         let n = model.len();
         let mut times = StageTimes::default();
         let clock = Instant::now();
@@ -426,7 +427,6 @@ impl Trainer {
         }
         let loss_value = loss.clone().into_scalar::<f32>() as f64;
         if !loss_value.is_finite() {
-            self.model = Some(model);
             return Err(CoreError::invalid(format!("loss became {loss_value} at iteration {t}")));
         }
         times.losses = clock.elapsed().as_secs_f64();
@@ -454,9 +454,10 @@ impl Trainer {
             let host: Vec<f32> = host_vec(g);
             self.stats.add(&host);
         }
-        let grads = GradientsParams::from_grads(grads, &model);
+        let grads = GradientsParams::from_grads(grads, model);
         times.backward = clock.elapsed().as_secs_f64();
         let clock = Instant::now();
+        let model = self.model.take().expect("model present between steps");
         let model = self.optim.step(lr, model, grads);
         times.optimizer = clock.elapsed().as_secs_f64();
         self.model = Some(model);
@@ -483,7 +484,7 @@ impl Trainer {
 
     /// Densification now (clone, split, prune), keeping parameters and Adam moments consistent.
     pub fn densify(&mut self) -> Result<densify::DensifyPlan> {
-        let model = self.model.take().expect("model present");
+        let model = self.model();
         let params = model.to_init();
         let densities: Vec<f32> = host_vec(model.valid().densities());
         let plan = densify::plan(
@@ -497,8 +498,8 @@ impl Trainer {
             self.iteration,
             self.cfg.run.seed,
         );
-        let optim = std::mem::replace(&mut self.optim, new_optimizer(&self.cfg)?);
-        let (model, optim) = densify::apply(model, optim, &plan, &self.device)?;
+        // Clones share the tensors; on an error the current model and optimizer stay as they are.
+        let (model, optim) = densify::apply(model.clone(), self.optim.clone(), &plan, &self.device)?;
         self.stats = DensifyStats::new(model.len());
         self.model = Some(model);
         self.optim = optim;
