@@ -137,3 +137,64 @@ fn run_folder_is_protected_and_resume_falls_back_to_a_good_checkpoint() {
     assert!(!run.join("checkpoints/ckpt-0000006").exists(), "--overwrite leaves the old run's checkpoints");
     assert!(run.join("checkpoints/ckpt-0000002").exists());
 }
+
+/// SIGKILL gives no chance to save: the run resumes from its last periodic checkpoint (written
+/// atomically, so a kill while one is written leaves only complete ones) and finishes.
+#[test]
+fn sigkill_resumes_from_the_last_periodic_checkpoint() {
+    let (case, run) = (tmp("kill-case"), tmp("kill-run"));
+    let bin = env!("CARGO_BIN_EXE_ctadsa");
+    let synth = Command::new(bin)
+        .args(["synth", "--out", case.to_str().unwrap(), "--terminals", "16", "--detector-px", "96"])
+        .args(["--binning", "2", "--voxel-mm", "0.6"])
+        .output()
+        .unwrap();
+    assert!(synth.status.success(), "{}", String::from_utf8_lossy(&synth.stderr));
+    let config = concat!(env!("CARGO_MANIFEST_DIR"), "/../configs/quick.toml");
+    let complete = |iterations: usize, extra: &[&str]| {
+        let mut c = Command::new(bin);
+        c.args(["complete", "--case", case.to_str().unwrap(), "--config", config, "--out", run.to_str().unwrap()]);
+        for s in [
+            format!("run.iterations={iterations}"),
+            "run.checkpoint_every=3".into(),
+            "init.n1=500".into(),
+            "init.n2=300".into(),
+            "densify.enabled=false".into(),
+            "output.metric_samples=2000".into(),
+        ] {
+            c.args(["--set", &s]);
+        }
+        c.args(extra);
+        c
+    };
+    let mut child = complete(100_000, &[]).stderr(Stdio::null()).spawn().unwrap();
+    let checkpoints = run.join("checkpoints");
+    let started = std::time::Instant::now();
+    while checkpoints_in(&checkpoints) < 2 {
+        assert!(started.elapsed().as_secs() < 300, "no periodic checkpoint after 300 s");
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    child.kill().unwrap(); // SIGKILL
+    let status = child.wait().unwrap();
+    assert!(!status.success());
+    assert!(!run.join("summary.json").exists());
+    let saved = checkpoints_in(&checkpoints);
+    let out = complete(3 * saved + 3, &["--resume"]).output().unwrap();
+    assert!(out.status.success(), "resume after SIGKILL failed:\n{}", String::from_utf8_lossy(&out.stderr));
+    assert!(run.join("summary.json").exists() && run.join("mesh.obj").exists());
+    let leftovers: Vec<_> = std::fs::read_dir(&checkpoints)
+        .unwrap()
+        .flatten()
+        .filter(|e| e.file_name().to_str().is_some_and(|n| n.contains(".partial-")))
+        .collect();
+    assert!(leftovers.is_empty(), "half-written checkpoint folders left behind: {leftovers:?}");
+}
+
+/// Complete checkpoint folders (`ckpt-…`, not a temporary `.ckpt-….partial`) in `dir`.
+fn checkpoints_in(dir: &std::path::Path) -> usize {
+    std::fs::read_dir(dir)
+        .map(|entries| {
+            entries.flatten().filter(|e| e.file_name().to_str().is_some_and(|n| n.starts_with("ckpt-"))).count()
+        })
+        .unwrap_or(0)
+}

@@ -545,6 +545,13 @@ impl Trainer {
             std::fs::remove_dir_all(&done).map_err(|e| CoreError::io(&done, e))?;
         }
         std::fs::rename(&ck, &done).map_err(|e| CoreError::io(&done, e))?;
+        // Folders a killed process left half-written are never read; remove them.
+        for stale in std::fs::read_dir(dir).map_err(|e| CoreError::io(dir, e))?.flatten() {
+            let name = stale.file_name();
+            if name.to_str().is_some_and(|n| n.starts_with(".ckpt-") && n.contains(".partial-")) {
+                let _ = std::fs::remove_dir_all(stale.path());
+            }
+        }
         Ok(done)
     }
 
