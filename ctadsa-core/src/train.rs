@@ -644,11 +644,6 @@ impl Trainer {
         Ok(t)
     }
 
-    /// The latest checkpoint folder under `dir`, if any.
-    pub fn latest_checkpoint(dir: &Path) -> Option<PathBuf> {
-        Self::checkpoints(dir).into_iter().next()
-    }
-
     /// The complete checkpoint folders under `dir` (`ckpt-` + iteration), newest first.
     pub fn checkpoints(dir: &Path) -> Vec<PathBuf> {
         let Ok(entries) = std::fs::read_dir(dir) else { return Vec::new() };
