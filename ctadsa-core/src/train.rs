@@ -198,7 +198,10 @@ pub struct Trainer {
     targets: LossTargets,
     anchor: Option<PriorAnchor>,
     model: Option<GaussianModel>,
+    /// Adam of the Gaussians' parameters (densification edits its state).
     optim: ModuleOptimizer,
+    /// Adam of the opacity field (never edited: its 2 × 16.8 M moments at paper scale stay put).
+    field_optim: ModuleOptimizer,
     pub stats: DensifyStats,
     /// Iterations done.
     pub iteration: usize,
@@ -212,21 +215,20 @@ pub struct Trainer {
     poses: Option<(ViewPoses, ModuleOptimizer)>,
 }
 
-fn new_optimizer(cfg: &Config) -> Result<ModuleOptimizer> {
+/// The Adam of the Gaussians and the Adam of the field (coupled L2 weight decay on the field).
+fn new_optimizers(cfg: &Config) -> (ModuleOptimizer, ModuleOptimizer) {
     let eps = cfg.optim.epsilon as f32;
     let decay = (cfg.optim.field_weight_decay > 0.0).then_some(cfg.optim.field_weight_decay as f32);
-    let field = ParamGroup::from_predicate("field");
-    Ok(match cfg.optim.adam {
-        AdamImpl::Fused => ModuleOptimizer::from(FusedAdam::new(eps)).with_group(
-            field,
-            FusedAdam::new(eps).with_weight_decay(decay),
-            None,
+    match cfg.optim.adam {
+        AdamImpl::Fused => (
+            ModuleOptimizer::from(FusedAdam::new(eps)),
+            ModuleOptimizer::from(FusedAdam::new(eps).with_weight_decay(decay)),
         ),
-        AdamImpl::Burn => {
-            let field_adam = AdamConfig::new().with_epsilon(eps).with_weight_decay(decay.map(WeightDecayConfig::new));
-            AdamConfig::new().with_epsilon(eps).init().with_group(field, field_adam.build(), None)
-        }
-    })
+        AdamImpl::Burn => (
+            AdamConfig::new().with_epsilon(eps).init(),
+            AdamConfig::new().with_epsilon(eps).with_weight_decay(decay.map(WeightDecayConfig::new)).init(),
+        ),
+    }
 }
 
 /// `init · (final / init)^(t / T)` (linear when one end is 0).
@@ -297,9 +299,11 @@ impl Trainer {
             let fixed: &[usize] = if cfg.pose.fix_first_view { &[0] } else { &[] };
             (ViewPoses::new(views.len(), fixed, &device), AdamConfig::new().with_epsilon(1e-12).init())
         });
+        let (gaussian_optim, field_optim) = new_optimizers(&cfg);
         Ok(Self {
             poses,
-            optim: new_optimizer(&cfg)?,
+            optim: gaussian_optim,
+            field_optim,
             cfg,
             device,
             views,
@@ -323,14 +327,17 @@ impl Trainer {
         self.model.as_ref().expect("model present between steps")
     }
 
-    fn learning_rates(&self) -> ModuleLearningRate {
+    /// Learning rates of the Gaussians' groups and of the field.
+    fn learning_rates(&self) -> (ModuleLearningRate, ModuleLearningRate) {
         let (t, total) = (self.iteration, self.cfg.run.iterations);
         let o = &self.cfg.optim;
-        ModuleLrScheduler::new(ConstantLr::new(decayed(o.lr_field, t, total)))
+        let field = ModuleLrScheduler::new(ConstantLr::new(decayed(o.lr_field, t, total))).step();
+        let gaussians = ModuleLrScheduler::new(ConstantLr::new(decayed(o.lr_means, t, total)))
             .with_group(ParamGroup::from_path("means"), ConstantLr::new(decayed(o.lr_means, t, total)))
             .with_group(ParamGroup::from_path("raw_scales"), ConstantLr::new(decayed(o.lr_scales, t, total)))
             .with_group(ParamGroup::from_path("rotations"), ConstantLr::new(decayed(o.lr_rotations, t, total)))
-            .step()
+            .step();
+        (gaussians, field)
     }
 
     fn step_views(&self) -> Vec<usize> {
@@ -356,7 +363,7 @@ impl Trainer {
     pub fn step(&mut self) -> Result<StepLog> {
         let cfg = self.cfg.clone();
         let t = self.iteration;
-        let lr = self.learning_rates();
+        let (lr, field_lr) = self.learning_rates();
         let idx = self.step_views();
         let (views, targets) = if idx.len() == self.views.len() {
             (self.views.clone(), self.targets.clone())
@@ -454,11 +461,14 @@ impl Trainer {
             let host: Vec<f32> = host_vec(g);
             self.stats.add(&host);
         }
-        let grads = GradientsParams::from_grads(grads, model);
+        let field_grads = GradientsParams::from_module(&mut grads, &model.field);
+        let gaussian_ids = [model.means.id, model.raw_scales.id, model.rotations.id];
+        let grads = GradientsParams::from_params(&mut grads, model, &gaussian_ids);
         times.backward = clock.elapsed().as_secs_f64();
         let clock = Instant::now();
-        let model = self.model.take().expect("model present between steps");
-        let model = self.optim.step(lr, model, grads);
+        let mut model = self.model.take().expect("model present between steps");
+        model = self.optim.step(lr, model, grads);
+        model.field = self.field_optim.step(field_lr, model.field, field_grads);
         times.optimizer = clock.elapsed().as_secs_f64();
         self.model = Some(model);
         self.iteration += 1;
@@ -520,9 +530,11 @@ impl Trainer {
             .clone()
             .save_file(ck.join("model.bpk"))
             .map_err(|e| CoreError::format(&ck.join("model.bpk"), format!("cannot save model: {e:?}")))?;
-        self.optim
-            .save(ck.join("optim.bpk"))
-            .map_err(|e| CoreError::format(&ck.join("optim.bpk"), format!("cannot save optimizer: {e:?}")))?;
+        for (optim, name) in [(&self.optim, "optim.bpk"), (&self.field_optim, "optim-field.bpk")] {
+            optim
+                .save(ck.join(name))
+                .map_err(|e| CoreError::format(&ck.join(name), format!("cannot save optimizer: {e:?}")))?;
+        }
         if let Some((poses, optim)) = &self.poses {
             let (mp, op) = (ck.join("poses.bpk"), ck.join("poses-optim.bpk"));
             poses.clone().save_file(&mp).map_err(|e| CoreError::format(&mp, format!("cannot save poses: {e:?}")))?;
@@ -620,11 +632,15 @@ impl Trainer {
             state.n1,
             state.n2,
         )?;
+        // Checkpoints of versions with one optimizer hold both states in optim.bpk.
         let optim_path = checkpoint.join("optim.bpk");
-        let optim = std::mem::replace(&mut t.optim, new_optimizer(&t.cfg)?);
-        t.optim = optim
-            .load(&optim_path)
-            .map_err(|e| CoreError::format(&optim_path, format!("cannot load optimizer state: {e:?}")))?;
+        let field_path = Some(checkpoint.join("optim-field.bpk")).filter(|p| p.exists()).unwrap_or(optim_path.clone());
+        let (gaussian_optim, field_optim) = new_optimizers(&t.cfg);
+        let load = |optim: ModuleOptimizer, path: &Path| {
+            optim.load(path).map_err(|e| CoreError::format(path, format!("cannot load optimizer state: {e:?}")))
+        };
+        t.optim = load(gaussian_optim, &optim_path)?;
+        t.field_optim = load(field_optim, &field_path)?;
         if let Some((poses, optim)) = t.poses.take() {
             let (mp, op) = (checkpoint.join("poses.bpk"), checkpoint.join("poses-optim.bpk"));
             let poses = poses
