@@ -7,11 +7,12 @@ mod common;
 
 use burn::tensor::{Device, Tensor, TensorData};
 use common::*;
-use ctadsa_render::reference::{RefGaussian, line_integral_exact};
+use ctadsa_render::reference::{RefGaussian, line_integral_exact, ray_mahalanobis2};
 use ctadsa_render::{ConeBeamView, Gaussians, RenderSettings, ViewSet, render, render_with_stats};
 
-/// `L = Σ_pixels weight · image` in f64 from the reference closed form.
-fn loss_f64(gs: &[RefGaussian], views: &ViewSet, weights: &[f64]) -> f64 {
+/// `L = Σ_pixels weight · image` in f64 from the reference closed form; a Gaussian counts for a
+/// pixel whose ray meets its `k`-σ ellipsoid, as in the renderer.
+fn loss_f64(gs: &[RefGaussian], views: &ViewSet, weights: &[f64], k: f64) -> f64 {
     let (w, h) = views.image_size();
     let mut total = 0.0;
     let mut i = 0;
@@ -19,7 +20,12 @@ fn loss_f64(gs: &[RefGaussian], views: &ViewSet, weights: &[f64]) -> f64 {
         for r in 0..h {
             for c in 0..w {
                 let d = view.pixel_ray(c as f64, r as f64);
-                let v: f64 = gs.iter().map(|g| line_integral_exact(g, view.source_mm(), d)).sum();
+                let o = view.source_mm();
+                let v: f64 = gs
+                    .iter()
+                    .filter(|g| ray_mahalanobis2(g, o, d) <= k * k)
+                    .map(|g| line_integral_exact(g, o, d))
+                    .sum();
                 total += weights[i] * v;
                 i += 1;
             }
@@ -29,13 +35,13 @@ fn loss_f64(gs: &[RefGaussian], views: &ViewSet, weights: &[f64]) -> f64 {
 }
 
 /// Finite-difference gradient of every parameter, in the order means, scales, quats, densities.
-fn fd_gradients(gs: &[RefGaussian], views: &ViewSet, weights: &[f64]) -> [Vec<f64>; 4] {
+fn fd_gradients(gs: &[RefGaussian], views: &ViewSet, weights: &[f64], k: f64) -> [Vec<f64>; 4] {
     let mut out: [Vec<f64>; 4] = Default::default();
     for (gi, g) in gs.iter().enumerate() {
         let eval = |m: &dyn Fn(&mut RefGaussian)| {
             let mut copy = gs.to_vec();
             m(&mut copy[gi]);
-            loss_f64(&copy, views, weights)
+            loss_f64(&copy, views, weights, k)
         };
         for k in 0..3 {
             let h = 1e-5;
@@ -74,6 +80,17 @@ fn params(g: &Gaussians) -> Gaussians {
 
 #[test]
 fn gradients_match_finite_differences() {
+    gradients_match_finite_differences_at(6.0);
+}
+
+/// At the default footprint cut-off the render is the truncated sum; its gradient is the
+/// truncated sum's (pixels do not cross the cut-off under the finite-difference steps).
+#[test]
+fn gradients_match_finite_differences_at_the_default_cutoff() {
+    gradients_match_finite_differences_at(3.0);
+}
+
+fn gradients_match_finite_differences_at(k: f32) {
     let (gs, views) = scene();
     let device = Device::ndarray().autodiff();
     let (w, h) = views.image_size();
@@ -81,7 +98,7 @@ fn gradients_match_finite_differences() {
     let mut rng = Rng(3);
     let weights: Vec<f64> = (0..n_px).map(|_| rng.uniform(-1.0, 1.0)).collect();
     let g = params(&to_tensors(&gs, &device));
-    let img = render(&g, &views, &RenderSettings { k_sigma: 6.0 }).unwrap();
+    let img = render(&g, &views, &RenderSettings { k_sigma: k }).unwrap();
     let wt = Tensor::<3>::from_data(
         TensorData::new(weights.iter().map(|&x| x as f32).collect::<Vec<_>>(), [views.len(), h as usize, w as usize]),
         &device,
@@ -93,11 +110,14 @@ fn gradients_match_finite_differences() {
         to_vec(g.rotations.grad(&grads).unwrap()),
         to_vec(g.densities.grad(&grads).unwrap()),
     ];
-    let fd = fd_gradients(&gs, &views, &weights);
+    let fd = fd_gradients(&gs, &views, &weights, k as f64);
     for (name, (a, b)) in ["means", "scales", "rotations", "densities"].iter().zip(ours.iter().zip(fd.iter())) {
         let a: Vec<f64> = a.iter().map(|&x| x as f64).collect();
         let err = rel_l2(&a, b);
-        println!("{name}: relative L2 error {err:.2e} (|fd| = {:.3e})", b.iter().map(|x| x * x).sum::<f64>().sqrt());
+        println!(
+            "k = {k}, {name}: relative L2 error {err:.2e} (|fd| = {:.3e})",
+            b.iter().map(|x| x * x).sum::<f64>().sqrt()
+        );
         assert!(err < 1e-3, "{name}: ours {a:?}\n fd {b:?}");
     }
 }
