@@ -331,4 +331,43 @@ mod tests {
         let model = optim.step(lr, model, grads);
         assert_eq!(model.means.val().dims(), [5, 3]);
     }
+
+    /// Four Gaussians: small and strongly pulled (cloned), large and strongly pulled (split into
+    /// two), faded (pruned), outside the working box (pruned); one quiet one stays as it is.
+    #[test]
+    fn plan_clones_small_splits_large_and_prunes_faded_or_outside() {
+        let bounds = ScaleBounds::from_voxel(0.5, 0.1, 10.0);
+        let raw = |s: f32| bounds.inverse(s);
+        let centres = [[0.0f32, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0], [50.0, 0.0, 0.0], [3.0, 0.0, 0.0]];
+        let sizes = [0.2f32, 3.0, 0.2, 0.2, 0.2];
+        let params = GaussianInit {
+            means: centres.iter().flatten().copied().collect(),
+            raw_scales: sizes.iter().flat_map(|&s| [raw(s); 3]).collect(),
+            rotations: [1.0f32, 0.0, 0.0, 0.0].repeat(5),
+        };
+        let densities = [1.0f32, 1.0, 1e-9, 1.0, 1.0];
+        let mut stats = DensifyStats::new(5);
+        stats.add(&[5e-3, 1.0, 5e-3, 1.0, 1e-6, 1.0, 5e-3, 1.0, 1e-6, 1.0]);
+        let cfg = DensifyConfig { from: 0, until: 100, grad_threshold: 1e-4, ..DensifyConfig::default() };
+        let working_box = BoxMm { min_mm: [-10.0; 3], max_mm: [10.0; 3] };
+        let plan = plan(&params, &densities, &stats, &cfg, bounds, &working_box, 0.5, 0, 1);
+        assert_eq!((plan.cloned, plan.split, plan.pruned), (1, 1, 2), "{plan:?}");
+        // Kept: the clone's parent and the quiet one; the split parent and both pruned are gone.
+        assert_eq!(plan.keep, vec![0, 4]);
+        assert_eq!(plan.added.len(), 3, "one clone and two children");
+        assert_eq!(&plan.added.means[..3], &centres[0], "a clone starts on its parent");
+        let child_scale = bounds.inverse(3.0 / 1.6);
+        for &r in &plan.added.raw_scales[3..] {
+            assert!((r - child_scale).abs() < 1e-4, "children are 1.6 times smaller: raw {r} vs {child_scale}");
+        }
+        for child in plan.added.means[3..].chunks(3) {
+            let d = ((child[0] - 1.0).powi(2) + child[1].powi(2) + child[2].powi(2)).sqrt();
+            assert!(d < 4.0 * 3.0, "a child {d} mm from its parent, scale 3 mm");
+        }
+        // The cap: no room left means no growth, but pruning still happens.
+        let capped = DensifyConfig { max_gaussians: 5, ..cfg };
+        let plan = super::plan(&params, &densities, &stats, &capped, bounds, &working_box, 0.5, 0, 1);
+        assert_eq!((plan.cloned, plan.split, plan.pruned), (0, 0, 2));
+        assert_eq!(plan.keep, vec![0, 1, 4]);
+    }
 }
