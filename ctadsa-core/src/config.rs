@@ -95,6 +95,10 @@ pub struct InitConfig {
     /// must show residual (the vessels behind the prior in any view are never seeded). Off by
     /// default: on one BraVa tree it traded recall for false surface (docs/RESULTS.md).
     pub occluded_views_support: bool,
+    /// Keep only seeds in connected groups of supported voxels that come within this distance
+    /// (mm) of the prior: a vessel tree is connected, while the intersections of two views'
+    /// back-projections ("ghosts") float free. 0 = off.
+    pub connected_to_prior_mm: f64,
 }
 
 impl Default for InitConfig {
@@ -109,6 +113,7 @@ impl Default for InitConfig {
             n2_voxel_mm: 0.0,
             knn: 3,
             occluded_views_support: false,
+            connected_to_prior_mm: 0.0,
         }
     }
 }
@@ -470,6 +475,11 @@ impl Config {
             "must be ≥ 0 (0 = the case's voxel)",
         )?;
         check(self.init.n2_voxel_mm.is_finite(), "init.n2_voxel_mm", "must be finite")?;
+        check(
+            (0.0..=100.0).contains(&self.init.connected_to_prior_mm),
+            "init.connected_to_prior_mm",
+            "must be in [0, 100] mm",
+        )?;
         for (k, r) in [
             ("optim.lr_means", self.optim.lr_means),
             ("optim.lr_scales", self.optim.lr_scales),

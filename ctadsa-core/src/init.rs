@@ -233,6 +233,11 @@ pub fn n2_seeds(
     let exclude = if cfg.n2_mode == SeedMode::AllViewsIntersect { None } else { solid.as_ref() };
     let occluded = occluded.filter(|_| intersect);
     let mut scored = back_project(&grid, views, &support, occluded.as_deref(), images, exclude, intersect);
+    if cfg.connected_to_prior_mm > 0.0
+        && let Some(s) = solid.as_ref()
+    {
+        scored = connected_to_prior(scored, s, cfg.connected_to_prior_mm);
+    }
     scored.sort_by(|a, b| b.0.total_cmp(&a.0));
     scored.truncate(cfg.n2);
     Ok(scored
@@ -241,6 +246,50 @@ pub fn n2_seeds(
             c + DVec3::new(rng.random_range(-0.5..0.5), rng.random_range(-0.5..0.5), rng.random_range(-0.5..0.5)) * h
         })
         .collect())
+}
+
+/// The scored voxels (centres on `prior`'s grid) whose 26-connected group of scored voxels comes
+/// within `reach_mm` of the prior solid.
+fn connected_to_prior(scored: Vec<(f64, DVec3)>, prior: &Volume<u8>, reach_mm: f64) -> Vec<(f64, DVec3)> {
+    let grid = prior.grid;
+    let [nx, ny, nz] = grid.dims;
+    let index_of = |c: DVec3| {
+        let ijk = [0, 1, 2].map(|a| ((c[a] - grid.origin_mm[a]) / grid.spacing_mm[a]).floor() as isize);
+        ijk.iter()
+            .zip(grid.dims)
+            .all(|(&i, d)| i >= 0 && (i as usize) < d)
+            .then(|| grid.index(ijk[0] as usize, ijk[1] as usize, ijk[2] as usize))
+    };
+    // Distance² (mm²) of every voxel outside the prior to the prior.
+    let outside = prior.map(|v| u8::from(v == 0));
+    let dist2 = crate::volume::edt::squared_edt(&outside);
+    let mut supported = vec![false; grid.len()];
+    for (_, c) in &scored {
+        if let Some(i) = index_of(*c) {
+            supported[i] = true;
+        }
+    }
+    // Flood fill from the supported voxels within reach of the prior.
+    let mut reached = vec![false; grid.len()];
+    let mut stack: Vec<usize> = (0..grid.len()).filter(|&i| supported[i] && dist2[i] <= reach_mm * reach_mm).collect();
+    for &i in &stack {
+        reached[i] = true;
+    }
+    while let Some(i) = stack.pop() {
+        let (x, y, z) = (i / (ny * nz), (i / nz) % ny, i % nz);
+        for a in x.saturating_sub(1)..(x + 2).min(nx) {
+            for b in y.saturating_sub(1)..(y + 2).min(ny) {
+                for c in z.saturating_sub(1)..(z + 2).min(nz) {
+                    let j = grid.index(a, b, c);
+                    if supported[j] && !reached[j] {
+                        reached[j] = true;
+                        stack.push(j);
+                    }
+                }
+            }
+        }
+    }
+    scored.into_iter().filter(|(_, c)| index_of(*c).is_some_and(|i| reached[i])).collect()
 }
 
 /// Isotropic scale (mm) of each point: sqrt of the mean squared distance to its `k` nearest
@@ -382,6 +431,34 @@ mod tests {
         let good = seeds.iter().filter(|p| near(p)).count();
         assert!(good as f64 >= 0.9 * seeds.len() as f64, "{good} of {} near a vessel", seeds.len());
         assert!(seeds.iter().any(|p| to_segment(*p, PRIOR.0, PRIOR.1) < 2.0), "the prior vessel is seeded too");
+    }
+
+    #[test]
+    fn seeds_connected_to_the_prior_keep_branches_and_drop_floating_vessels() {
+        let bounds = BoxMm { min_mm: [-15.0; 3], max_mm: [15.0; 3] };
+        let grid = Grid::covering(&bounds, 0.4).unwrap();
+        let (branch, floating) = (([4.0, 0.0, 0.0], [4.0, 8.0, 8.0]), ([-8.0, 8.0, -8.0], [-8.0, 8.0, 8.0]));
+        let complete = rasterize_segments(
+            &[segment(PRIOR.0, PRIOR.1, 1.2), segment(branch.0, branch.1, 0.6), segment(floating.0, floating.1, 0.6)],
+            grid,
+            2,
+        );
+        let prior = extract_isosurface(&rasterize_segments(&[segment(PRIOR.0, PRIOR.1, 1.2)], grid, 2), 0.5);
+        let (_, views, _, _) = scene();
+        let images: Vec<Image> =
+            project_volume(&complete, &views).into_iter().map(|data| Image { width: 64, height: 64, data }).collect();
+        let seeds_with = |reach: f64| {
+            let cfg =
+                InitConfig { n2: 2000, prior_dilation_px: 1, connected_to_prior_mm: reach, ..InitConfig::default() };
+            n2_seeds(&cfg, &views, &images, Some(&prior), &bounds, 0.4, 7).unwrap()
+        };
+        let on =
+            |seeds: &[DVec3], s: ([f64; 3], [f64; 3])| seeds.iter().filter(|p| to_segment(**p, s.0, s.1) < 1.5).count();
+        let all = seeds_with(0.0);
+        assert!(on(&all, floating) > 20 && on(&all, branch) > 20, "both vessels are seeded without the filter");
+        let connected = seeds_with(3.0);
+        assert_eq!(on(&connected, floating), 0, "the floating vessel is dropped");
+        assert!(on(&connected, branch) >= on(&all, branch), "the branch keeps its seeds (and gets the freed ones)");
     }
 
     #[test]
