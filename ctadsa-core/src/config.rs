@@ -97,8 +97,12 @@ pub struct InitConfig {
     pub occluded_views_support: bool,
     /// Keep only seeds in connected groups of supported voxels that come within this distance
     /// (mm) of the prior: a vessel tree is connected, while the intersections of two views'
-    /// back-projections ("ghosts") float free. 0 = off.
+    /// back-projections ("ghosts") float free. 0 = off. Measured on the 8 BraVa trees
+    /// (docs/RESULTS.md): it helps with 2 views and hurts with 3, where the third view already
+    /// rejects the ghosts and the filter drops true vessels whose junction the residual hides.
     pub connected_to_prior_mm: f64,
+    /// Apply `connected_to_prior_mm` only to runs with at most this many views.
+    pub connected_max_views: usize,
 }
 
 impl Default for InitConfig {
@@ -113,7 +117,8 @@ impl Default for InitConfig {
             n2_voxel_mm: 0.0,
             knn: 3,
             occluded_views_support: false,
-            connected_to_prior_mm: 0.0,
+            connected_to_prior_mm: 3.0,
+            connected_max_views: 2,
         }
     }
 }

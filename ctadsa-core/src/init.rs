@@ -233,8 +233,10 @@ pub fn n2_seeds(
     let exclude = if cfg.n2_mode == SeedMode::AllViewsIntersect { None } else { solid.as_ref() };
     let occluded = occluded.filter(|_| intersect);
     let mut scored = back_project(&grid, views, &support, occluded.as_deref(), images, exclude, intersect);
+    // Not for the mask-only mode, which ignores the prior by design.
     if cfg.connected_to_prior_mm > 0.0
-        && let Some(s) = solid.as_ref()
+        && views.len() <= cfg.connected_max_views
+        && let Some(s) = exclude
     {
         scored = connected_to_prior(scored, s, cfg.connected_to_prior_mm);
     }
@@ -411,7 +413,8 @@ mod tests {
     #[test]
     fn residual_seeds_lie_on_the_vessel_the_prior_misses() {
         let (prior, views, images, bounds) = scene();
-        let cfg = InitConfig { n2: 300, prior_dilation_px: 1, ..InitConfig::default() };
+        // The missed vessel here floats 3.8 mm from the prior: no connectivity filter.
+        let cfg = InitConfig { n2: 300, prior_dilation_px: 1, connected_to_prior_mm: 0.0, ..InitConfig::default() };
         let seeds = n2_seeds(&cfg, &views, &images, Some(&prior), &bounds, 0.4, 7).unwrap();
         assert!(seeds.len() >= 50, "only {} seeds", seeds.len());
         let on_missing = seeds.iter().filter(|p| to_segment(**p, MISSING.0, MISSING.1) < 1.5).count();
@@ -447,11 +450,17 @@ mod tests {
         let (_, views, _, _) = scene();
         let images: Vec<Image> =
             project_volume(&complete, &views).into_iter().map(|data| Image { width: 64, height: 64, data }).collect();
-        let seeds_with = |reach: f64| {
-            let cfg =
-                InitConfig { n2: 2000, prior_dilation_px: 1, connected_to_prior_mm: reach, ..InitConfig::default() };
+        let seeds_up_to = |reach: f64, max_views: usize| {
+            let cfg = InitConfig {
+                n2: 2000,
+                prior_dilation_px: 1,
+                connected_to_prior_mm: reach,
+                connected_max_views: max_views,
+                ..InitConfig::default()
+            };
             n2_seeds(&cfg, &views, &images, Some(&prior), &bounds, 0.4, 7).unwrap()
         };
+        let seeds_with = |reach: f64| seeds_up_to(reach, 3);
         let on =
             |seeds: &[DVec3], s: ([f64; 3], [f64; 3])| seeds.iter().filter(|p| to_segment(**p, s.0, s.1) < 1.5).count();
         let all = seeds_with(0.0);
@@ -459,6 +468,7 @@ mod tests {
         let connected = seeds_with(3.0);
         assert_eq!(on(&connected, floating), 0, "the floating vessel is dropped");
         assert!(on(&connected, branch) >= on(&all, branch), "the branch keeps its seeds (and gets the freed ones)");
+        assert_eq!(seeds_up_to(3.0, 2), all, "three views are more than connected_max_views: no filter");
     }
 
     #[test]
