@@ -9,16 +9,50 @@ fn tmp(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("cli-{name}-{}", std::process::id()))
 }
 
-#[test]
-fn sigterm_saves_a_checkpoint_exits_non_zero_and_resume_finishes() {
-    let (case, run) = (tmp("term-case"), tmp("term-run"));
-    let bin = env!("CARGO_BIN_EXE_ctadsa");
-    let synth = Command::new(bin)
-        .args(["synth", "--out", case.to_str().unwrap(), "--terminals", "16", "--detector-px", "96"])
+const BIN: &str = env!("CARGO_BIN_EXE_ctadsa");
+
+/// A small procedural case synthesised into `dir`.
+fn small_case(dir: &std::path::Path) {
+    let synth = Command::new(BIN)
+        .args(["synth", "--out", dir.to_str().unwrap(), "--terminals", "16", "--detector-px", "96"])
         .args(["--binning", "2", "--voxel-mm", "0.6"])
         .output()
         .unwrap();
     assert!(synth.status.success(), "{}", String::from_utf8_lossy(&synth.stderr));
+}
+
+/// `ctadsa complete` on `case` into `run` with the quick config shrunk: `iterations`, a
+/// checkpoint every `every` steps, `n1` + `n2` Gaussians, no densification; then `extra`.
+fn complete_cmd(
+    case: &std::path::Path,
+    run: &std::path::Path,
+    iterations: usize,
+    every: usize,
+    (n1, n2): (usize, usize),
+    extra: &[&str],
+) -> Command {
+    let config = concat!(env!("CARGO_MANIFEST_DIR"), "/../configs/quick.toml");
+    let mut c = Command::new(BIN);
+    c.args(["complete", "--case", case.to_str().unwrap(), "--config", config, "--out", run.to_str().unwrap()]);
+    for s in [
+        format!("run.iterations={iterations}"),
+        format!("run.checkpoint_every={every}"),
+        format!("init.n1={n1}"),
+        format!("init.n2={n2}"),
+        "densify.enabled=false".into(),
+        "output.metric_samples=2000".into(),
+    ] {
+        c.args(["--set", &s]);
+    }
+    c.args(extra).env("RUST_BACKTRACE", "0");
+    c
+}
+
+#[test]
+fn sigterm_saves_a_checkpoint_exits_non_zero_and_resume_finishes() {
+    let (case, run) = (tmp("term-case"), tmp("term-run"));
+    let bin = BIN;
+    small_case(&case);
     let config = concat!(env!("CARGO_MANIFEST_DIR"), "/../configs/quick.toml");
     let args = |extra: &[&str]| {
         let mut a: Vec<String> =
@@ -73,28 +107,9 @@ fn sigterm_saves_a_checkpoint_exits_non_zero_and_resume_finishes() {
 #[test]
 fn run_folder_is_protected_and_resume_falls_back_to_a_good_checkpoint() {
     let (case, run) = (tmp("fold-case"), tmp("fold-run"));
-    let bin = env!("CARGO_BIN_EXE_ctadsa");
-    let synth = Command::new(bin)
-        .args(["synth", "--out", case.to_str().unwrap(), "--terminals", "16", "--detector-px", "96"])
-        .args(["--binning", "2", "--voxel-mm", "0.6"])
-        .output()
-        .unwrap();
-    assert!(synth.status.success(), "{}", String::from_utf8_lossy(&synth.stderr));
-    let config = concat!(env!("CARGO_MANIFEST_DIR"), "/../configs/quick.toml");
+    small_case(&case);
     let complete = |iterations: usize, extra: &[&str]| {
-        let mut c = Command::new(bin);
-        c.args(["complete", "--case", case.to_str().unwrap(), "--config", config, "--out", run.to_str().unwrap()]);
-        for s in [
-            format!("run.iterations={iterations}"),
-            "run.checkpoint_every=2".into(),
-            "init.n1=300".into(),
-            "init.n2=200".into(),
-            "densify.enabled=false".into(),
-            "output.metric_samples=2000".into(),
-        ] {
-            c.args(["--set", &s]);
-        }
-        c.args(extra).env("RUST_BACKTRACE", "0").output().unwrap()
+        complete_cmd(&case, &run, iterations, 2, (300, 200), extra).output().unwrap()
     };
     let first = complete(4, &[]);
     assert!(first.status.success(), "{}", String::from_utf8_lossy(&first.stderr));
@@ -143,30 +158,8 @@ fn run_folder_is_protected_and_resume_falls_back_to_a_good_checkpoint() {
 #[test]
 fn sigkill_resumes_from_the_last_periodic_checkpoint() {
     let (case, run) = (tmp("kill-case"), tmp("kill-run"));
-    let bin = env!("CARGO_BIN_EXE_ctadsa");
-    let synth = Command::new(bin)
-        .args(["synth", "--out", case.to_str().unwrap(), "--terminals", "16", "--detector-px", "96"])
-        .args(["--binning", "2", "--voxel-mm", "0.6"])
-        .output()
-        .unwrap();
-    assert!(synth.status.success(), "{}", String::from_utf8_lossy(&synth.stderr));
-    let config = concat!(env!("CARGO_MANIFEST_DIR"), "/../configs/quick.toml");
-    let complete = |iterations: usize, extra: &[&str]| {
-        let mut c = Command::new(bin);
-        c.args(["complete", "--case", case.to_str().unwrap(), "--config", config, "--out", run.to_str().unwrap()]);
-        for s in [
-            format!("run.iterations={iterations}"),
-            "run.checkpoint_every=3".into(),
-            "init.n1=500".into(),
-            "init.n2=300".into(),
-            "densify.enabled=false".into(),
-            "output.metric_samples=2000".into(),
-        ] {
-            c.args(["--set", &s]);
-        }
-        c.args(extra);
-        c
-    };
+    small_case(&case);
+    let complete = |iterations: usize, extra: &[&str]| complete_cmd(&case, &run, iterations, 3, (500, 300), extra);
     let mut child = complete(100_000, &[]).stderr(Stdio::null()).spawn().unwrap();
     let checkpoints = run.join("checkpoints");
     let started = std::time::Instant::now();
