@@ -5,16 +5,16 @@
 
 use std::path::{Path, PathBuf};
 
-use ctadsa_core::case::images::Image;
-use ctadsa_core::case::{Case, ViewGeometry};
-use ctadsa_core::clinical::dsa::Subtraction;
-use ctadsa_core::clinical::import::{DsaOptions, dsa_view, write_dsa_case};
-use ctadsa_core::clinical::prior::{LabelPriorOptions, Visibility, prior_from_labels};
-use ctadsa_core::clinical::simulate::{BOLUS, simulated_run};
-use ctadsa_core::clinical::xa::{XaRunSpec, read_xa_run, write_xa_run};
-use ctadsa_core::synth::{Anatomy, SynthConfig, synthesize};
-use ctadsa_core::tree::prior::PriorThreshold;
-use ctadsa_core::volume::nifti_io::{read_nifti, write_nifti};
+use ctadsa_core::data::case::images::Image;
+use ctadsa_core::data::case::{Case, ViewGeometry};
+use ctadsa_core::data::clinical::dsa::Subtraction;
+use ctadsa_core::data::clinical::import::{DsaOptions, dsa_view, write_dsa_case};
+use ctadsa_core::data::clinical::prior::{LabelPriorOptions, Visibility, prior_from_labels};
+use ctadsa_core::data::clinical::simulate::{BOLUS, simulated_run};
+use ctadsa_core::data::clinical::xa::{XaRunSpec, read_xa_run, write_xa_run};
+use ctadsa_core::data::synth::{Anatomy, SynthConfig, synthesize};
+use ctadsa_core::data::tree::prior::PriorThreshold;
+use ctadsa_core::data::volume::nifti_io::{read_nifti, write_nifti};
 use ctadsa_render::{ConeBeamView, TigreGeometry};
 
 fn tmp(name: &str) -> PathBuf {
@@ -216,7 +216,7 @@ fn topcow_synth_drops_whole_labels_from_the_prior() {
     let prior = case.file.prior.as_ref().unwrap();
     assert!(prior.description.contains("[8, 9, 10]"), "{}", prior.description);
     let missing = case.dir.join(case.file.ground_truth.as_ref().unwrap().missing_mesh.as_ref().unwrap());
-    assert!(!ctadsa_core::mesh::io::read_mesh(&missing).unwrap().is_empty(), "the dropped branches are missing");
+    assert!(!ctadsa_core::data::mesh::io::read_mesh(&missing).unwrap().is_empty(), "the dropped branches are missing");
     // With nothing dropped and no thickness threshold, nothing is missing.
     let all = synthesize(&labels(vec![]), &tmp("topcow-nodrop"), &mut |_| {}).expect("synthesis");
     assert_eq!(all.prior_volume_mm3, all.complete_volume_mm3);

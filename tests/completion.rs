@@ -7,11 +7,12 @@ use std::path::PathBuf;
 use std::sync::OnceLock;
 
 use burn::tensor::Device;
-use ctadsa_core::case::Case;
 use ctadsa_core::config::{AdamImpl, Config};
-use ctadsa_core::export::{RunSummary, write_outputs};
-use ctadsa_core::synth::{SynthConfig, synthesize};
-use ctadsa_core::train::Trainer;
+use ctadsa_core::data::case::Case;
+use ctadsa_core::data::synth::{SynthConfig, synthesize};
+use ctadsa_core::method::train::{StepLog, Trainer};
+use ctadsa_core::output::export::{RunSummary, write_outputs};
+use ctadsa_core::run::completion::{Monitor, Outcome, Start, run_completion};
 
 /// The built-in quick configuration, shrunk: fewer Gaussians and iterations, no densification
 /// (so that runs on different backends keep the same Gaussians).
@@ -44,34 +45,44 @@ fn tiny_case() -> &'static Case {
     })
 }
 
-fn run(device: Device, iterations: usize, out: &str) -> (Trainer, RunSummary) {
-    let case = tiny_case();
-    let mut trainer = Trainer::new(case, tiny_config(iterations), device.autodiff()).expect("trainer");
-    while trainer.iteration < iterations {
-        trainer.step().expect("step");
+/// Records every step of a run.
+struct History(Vec<StepLog>);
+
+impl Monitor for History {
+    fn stepped(&mut self, _: &Trainer, log: &StepLog) {
+        self.0.push(*log);
     }
+}
+
+/// A whole run of the tiny case through the library's run loop (what `ctadsa complete` runs).
+fn run(device: Device, iterations: usize, out: &str) -> (Vec<StepLog>, RunSummary) {
     let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("{out}-{}", std::process::id()));
-    let summary = write_outputs(&dir, case, &trainer).expect("outputs");
-    (trainer, summary)
+    let mut history = History(Vec::new());
+    let outcome =
+        run_completion(tiny_case(), tiny_config(iterations), device.autodiff(), &dir, Start::Overwrite, &mut history)
+            .expect("run");
+    let Outcome::Finished(summary) = outcome else { panic!("the run was not asked to stop") };
+    assert!(dir.join("report.html").exists() && dir.join("summary.json").exists(), "the run writes its outputs");
+    (history.0, *summary)
 }
 
 #[test]
 fn completion_recovers_the_missing_vessels() {
-    let (trainer, s) = run(Device::ndarray(), 300, "tiny-run");
+    let (history, s) = run(Device::ndarray(), 300, "tiny-run");
     let m = s.metrics.as_ref().expect("the case has ground truth");
     let p = s.prior_metrics.as_ref().expect("prior metrics");
     let roi = m.roi.as_ref().expect("ROI scores");
     eprintln!(
         "tiny completion: L1 {:.4} → {:.4}; ROI CD mean {:.3} mm, HD95 {:.3} mm; overall CD {:.3} mm (prior only {:.3})",
-        trainer.history[0].l1,
-        trainer.history.last().unwrap().l1,
+        history[0].l1,
+        history.last().unwrap().l1,
         roi.cd_mean_mm,
         roi.hd95_mm,
         m.overall.cd_mean_mm,
         p.overall.cd_mean_mm
     );
-    let l1_last = trainer.history.last().unwrap().l1;
-    assert!(l1_last < 0.5 * trainer.history[0].l1, "the L1 image error must at least halve");
+    let l1_last = history.last().unwrap().l1;
+    assert!(l1_last < 0.5 * history[0].l1, "the L1 image error must at least halve");
     // Stated bound: missing vessels recovered to within 1.3 mm on average (voxels 0.4 mm,
     // pixels 0.7 mm at the isocentre; measured 1.0 mm after 300 iterations).
     assert!(roi.cd_mean_mm < 1.3, "ROI Chamfer distance {:.3} mm ≥ 1.3 mm", roi.cd_mean_mm);
@@ -100,7 +111,7 @@ fn wgpu_run_matches_the_cpu_run() {
     // Adam (ε = 1e-15) amplifies tiny gradient differences, so trajectories agree closely at
     // first and statistically later.
     let rel = |x: f64, y: f64| (x - y).abs() / x.abs().max(1e-12);
-    for (x, y) in a.history.iter().zip(&b.history).take(5) {
+    for (x, y) in a.iter().zip(&b).take(5) {
         assert!(
             rel(x.loss, y.loss) < 0.01,
             "iteration {}: loss {} (ndarray) vs {} (wgpu)",
@@ -109,9 +120,9 @@ fn wgpu_run_matches_the_cpu_run() {
             y.loss
         );
     }
-    let worst = a.history.iter().zip(&b.history).map(|(x, y)| rel(x.l1, y.l1)).fold(0.0, f64::max);
+    let worst = a.iter().zip(&b).map(|(x, y)| rel(x.l1, y.l1)).fold(0.0, f64::max);
     eprintln!("largest relative L1 difference over {iterations} iterations: {worst:.4}");
-    let (la, lb) = (a.history.last().unwrap().l1, b.history.last().unwrap().l1);
+    let (la, lb) = (a.last().unwrap().l1, b.last().unwrap().l1);
     assert!(rel(la, lb) < 0.15, "final L1 {la} (ndarray) vs {lb} (wgpu)");
     let (ma, mb) = (sa.metrics.unwrap(), sb.metrics.unwrap());
     eprintln!("overall CD mean: ndarray {:.3} mm, wgpu {:.3} mm", ma.overall.cd_mean_mm, mb.overall.cd_mean_mm);
@@ -243,7 +254,7 @@ fn no_ground_truth_steers_the_method() {
         }
         if name == "with-gt" {
             // The diagnosis's "found" class is the recall criterion, so the two agree.
-            let b = ctadsa_core::diagnose::diagnose_run(c, &dir).unwrap();
+            let b = ctadsa_core::eval::diagnose::diagnose_run(c, &dir).unwrap();
             let recall = summary.coverage.unwrap().missing_recall.unwrap();
             let total = b.found + b.not_in_masks + b.behind_prior + b.not_seeded + b.misplaced + b.faded;
             assert!((total - 1.0).abs() < 1e-9, "classes sum to {total}");
@@ -287,7 +298,7 @@ fn chromium() -> Option<PathBuf> {
 fn report_page_renders_its_images_in_headless_chromium() {
     let (_, _) = run(Device::ndarray(), 20, "tiny-report");
     let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("tiny-report-{}", std::process::id()));
-    let page = ctadsa_core::report::write_report(&dir).expect("report");
+    let page = ctadsa_core::output::report::write_report(&dir).expect("report");
     let html = std::fs::read_to_string(&page).unwrap();
     assert!(html.contains("data:image/png;base64,") && !html.contains("src=\"renders/"), "images are embedded");
     for section in ["Inputs", "Renders against targets", "Completed vessel tree", "Metrics", "Configuration"] {

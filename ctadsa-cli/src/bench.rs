@@ -11,10 +11,10 @@ use std::time::Instant;
 use anyhow::{Context, Result, bail};
 use burn::tensor::{Tensor, TensorData};
 use clap::{Args, Subcommand};
-use ctadsa_core::projector::project_volume;
-use ctadsa_core::tree::gaussians::{GaussianArrays, tree_gaussians};
-use ctadsa_core::tree::procedural::ProceduralTree;
-use ctadsa_core::volume::{Grid, Volume};
+use ctadsa_core::data::projector::project_volume;
+use ctadsa_core::data::tree::gaussians::{GaussianArrays, tree_gaussians};
+use ctadsa_core::data::tree::procedural::ProceduralTree;
+use ctadsa_core::data::volume::{Grid, Volume};
 use ctadsa_render::cpu::{self, HostGaussians};
 use ctadsa_render::{ConeBeamView, Gaussians, RenderSettings, TigreGeometry, ViewSet, VoxelGrid};
 
@@ -257,15 +257,15 @@ fn bench_train(
     steps: usize,
     backend: BackendKind,
 ) -> Result<()> {
-    use ctadsa_core::case::Case;
     use ctadsa_core::config::Config;
-    use ctadsa_core::train::Trainer;
+    use ctadsa_core::data::case::Case;
+    use ctadsa_core::method::train::Trainer;
     let case_dir = match case {
         Some(d) => d,
         None => {
             let d = std::env::temp_dir().join(format!("ctadsa-bench-case-{}", std::process::id()));
             eprintln!("synthesising the demo case into {}", d.display());
-            ctadsa_core::synth::synthesize(&crate::complete::demo_case_config(), &d, &mut |_| {})?;
+            ctadsa_core::data::synth::synthesize(&crate::complete::demo_case_config(), &d, &mut |_| {})?;
             d
         }
     };
@@ -281,7 +281,7 @@ fn bench_train(
     for _ in 0..2 {
         trainer.step()?;
     }
-    let mut sum = ctadsa_core::train::StageTimes::default();
+    let mut sum = ctadsa_core::method::train::StageTimes::default();
     let start = Instant::now();
     for _ in 0..steps.max(1) {
         let t = trainer.step()?.times;
@@ -442,7 +442,7 @@ fn bench_projector(voxels: usize, size: u32) -> Result<()> {
         ProceduralTree { terminals: 300, domain_mm: [60.0, 60.0, 50.0], seed: 7, ..Default::default() }.generate()?;
     let h = 130.0 / voxels as f64;
     let grid = Grid { dims: [voxels; 3], spacing_mm: [h; 3], origin_mm: [-65.0; 3] };
-    let vol = ctadsa_core::volume::rasterize::rasterize_segments(&tree.segments(), grid, 1);
+    let vol = ctadsa_core::data::volume::rasterize::rasterize_segments(&tree.segments(), grid, 1);
     let geom = TigreGeometry {
         detector_px: [size, size],
         pixel_mm: [256.0 / size as f64, 256.0 / size as f64],

@@ -4,13 +4,13 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
-use ctadsa_core::case::Case;
-use ctadsa_core::clinical::dsa::Subtraction;
-use ctadsa_core::clinical::import::{DsaOptions, DsaView, dsa_view, write_dsa_case};
-use ctadsa_core::clinical::prior::{LabelPriorOptions, Visibility, prior_from_labels};
-use ctadsa_core::clinical::xa::read_xa_run;
-use ctadsa_core::mesh::TriMesh;
-use ctadsa_core::mesh::io::{read_mesh, write_mesh};
+use ctadsa_core::data::case::Case;
+use ctadsa_core::data::clinical::dsa::Subtraction;
+use ctadsa_core::data::clinical::import::{DsaOptions, DsaView, dsa_view, write_dsa_case};
+use ctadsa_core::data::clinical::prior::{LabelPriorOptions, Visibility, prior_from_labels};
+use ctadsa_core::data::clinical::xa::read_xa_run;
+use ctadsa_core::data::mesh::TriMesh;
+use ctadsa_core::data::mesh::io::{read_mesh, write_mesh};
 use ctadsa_render::ConeBeamView;
 
 /// Options shared by both commands for making the prior from a label volume.
@@ -246,9 +246,9 @@ pub struct ExportDicomArgs {
 
 /// Writes simulated DSA runs (mask + 7 bolus frames) of a case's views as DICOM.
 pub fn export_dicom(args: ExportDicomArgs) -> Result<()> {
-    use ctadsa_core::case::ViewGeometry;
-    use ctadsa_core::clinical::simulate::simulated_run;
-    use ctadsa_core::clinical::xa::write_xa_run;
+    use ctadsa_core::data::case::ViewGeometry;
+    use ctadsa_core::data::clinical::simulate::simulated_run;
+    use ctadsa_core::data::clinical::xa::write_xa_run;
     use ctadsa_render::TigreGeometry;
     let case = Case::load(&args.case)?;
     let max = case.images.iter().map(|i| i.max()).fold(0.0f32, f32::max);

@@ -5,15 +5,16 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
-use anyhow::{Context, Result, bail};
-use burn::tensor::Device;
+use anyhow::{Result, bail};
 use clap::Args;
-use ctadsa_core::case::Case;
 use ctadsa_core::config::Config;
-use ctadsa_core::export::{RunSummary, write_outputs};
-use ctadsa_core::synth::{Anatomy, SynthConfig, synthesize};
-use ctadsa_core::train::Trainer;
-use ctadsa_core::tree::procedural::ProceduralTree;
+use ctadsa_core::data::case::Case;
+use ctadsa_core::data::synth::{Anatomy, SynthConfig, synthesize};
+use ctadsa_core::data::tree::procedural::ProceduralTree;
+use ctadsa_core::method::train::{StepLog, Trainer};
+use ctadsa_core::output::export::RunSummary;
+use ctadsa_core::run::completion::{self, Monitor, Outcome, Start};
+use indicatif::ProgressBar;
 
 use crate::backend::BackendKind;
 use crate::progress::bar;
@@ -46,66 +47,6 @@ pub struct CompleteArgs {
     overwrite: bool,
 }
 
-/// How a run starts in its output folder.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Start<'a> {
-    /// A new run; refused when the folder holds one.
-    Fresh,
-    /// A new run; an earlier run's checkpoints and summary in the folder are removed first.
-    Overwrite,
-    /// From `"latest"` (the newest usable checkpoint in the folder) or a checkpoint folder.
-    Resume(&'a str),
-}
-
-/// Whether `out` holds (part of) a run: a summary or a checkpoint.
-fn holds_run(out: &Path) -> bool {
-    out.join("summary.json").exists() || !Trainer::checkpoints(&out.join("checkpoints")).is_empty()
-}
-
-/// The trainer for `start`: `Resume("latest")` falls back to older checkpoints when the newest
-/// cannot be read (e.g. a file cut short by a kill), saying so.
-fn start_trainer(case: &Case, cfg: &Config, device: Device, out: &Path, start: Start) -> Result<Trainer> {
-    let ck_dir = out.join("checkpoints");
-    match start {
-        Start::Fresh if holds_run(out) => {
-            bail!("{} already holds a run: pass --resume to continue it or --overwrite to start again", out.display())
-        }
-        Start::Fresh => Ok(Trainer::new(case, cfg.clone(), device)?),
-        Start::Overwrite => {
-            for stale in [out.join("summary.json"), ck_dir.clone()] {
-                if stale.is_dir() {
-                    std::fs::remove_dir_all(&stale).with_context(|| format!("cannot remove {}", stale.display()))?;
-                } else if stale.exists() {
-                    std::fs::remove_file(&stale).with_context(|| format!("cannot remove {}", stale.display()))?;
-                }
-            }
-            Ok(Trainer::new(case, cfg.clone(), device)?)
-        }
-        Start::Resume("latest") => {
-            let cks = Trainer::checkpoints(&ck_dir);
-            let mut first_error = None;
-            for ck in &cks {
-                eprintln!("resuming from {}", ck.display());
-                match Trainer::resume(case, cfg.clone(), device.clone(), ck) {
-                    Ok(t) => return Ok(t),
-                    Err(e) => {
-                        eprintln!("warning: checkpoint {} is unusable: {e}", ck.display());
-                        first_error.get_or_insert(e);
-                    }
-                }
-            }
-            match first_error {
-                Some(e) => Err(e).context(format!("no usable checkpoint in {}", ck_dir.display())),
-                None => bail!("no checkpoint in {}", ck_dir.display()),
-            }
-        }
-        Start::Resume(path) => {
-            eprintln!("resuming from {path}");
-            Ok(Trainer::resume(case, cfg.clone(), device, Path::new(path))?)
-        }
-    }
-}
-
 /// Installs a handler for Ctrl-C (SIGINT), SIGTERM (what `timeout`, SLURM and `docker stop`
 /// send) and SIGHUP that raises a flag: the loop saves a checkpoint and stops, and the command
 /// exits non-zero.
@@ -117,49 +58,61 @@ fn interrupt_flag() -> Arc<AtomicBool> {
     flag
 }
 
-/// Runs the optimisation with a progress bar, checkpoints and Ctrl-C handling; writes outputs.
-pub fn run_completion(
-    case: &Case,
-    cfg: Config,
-    backend: BackendKind,
-    out: &Path,
-    start: Start,
-) -> Result<Option<RunSummary>> {
-    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
-    let device = backend.device()?.autodiff();
-    let ck_dir = out.join("checkpoints");
-    let mut trainer = start_trainer(case, &cfg, device, out, start)?;
-    eprintln!(
-        "{} views of {}×{} px, {} Gaussians ({} on the prior, {} from the images), {} iterations",
-        trainer.views.len(),
-        trainer.views.image_size().0,
-        trainer.views.image_size().1,
-        trainer.model().len(),
-        trainer.n1,
-        trainer.n2,
-        cfg.run.iterations
-    );
-    let stop = interrupt_flag();
-    let pb = bar(cfg.run.iterations as u64, "complete");
-    pb.set_position(trainer.iteration as u64);
-    let start = Instant::now();
-    let first = trainer.iteration;
-    while trainer.iteration < cfg.run.iterations {
-        let log = trainer.step()?;
-        let rate = (trainer.iteration - first) as f64 / start.elapsed().as_secs_f64().max(1e-9);
-        pb.set_position(trainer.iteration as u64);
+/// What the terminal shows of a run: a progress bar, or a log line every 10 % without a
+/// terminal; Ctrl-C / SIGTERM ask the run to stop.
+pub struct Terminal {
+    pb: ProgressBar,
+    stop: Arc<AtomicBool>,
+    began: Instant,
+    first: usize,
+    iterations: usize,
+}
+
+impl Terminal {
+    /// A terminal monitor with the interrupt handler installed.
+    pub fn new() -> Self {
+        Self { pb: ProgressBar::hidden(), stop: interrupt_flag(), began: Instant::now(), first: 0, iterations: 0 }
+    }
+}
+
+impl Monitor for Terminal {
+    fn note(&mut self, line: &str) {
+        eprintln!("{line}");
+    }
+
+    fn started(&mut self, trainer: &Trainer, cfg: &Config) {
+        eprintln!(
+            "{} views of {}×{} px, {} Gaussians ({} on the prior, {} from the images), {} iterations",
+            trainer.views.len(),
+            trainer.views.image_size().0,
+            trainer.views.image_size().1,
+            trainer.model().len(),
+            trainer.n1,
+            trainer.n2,
+            cfg.run.iterations
+        );
+        self.iterations = cfg.run.iterations;
+        self.pb = bar(cfg.run.iterations as u64, "complete");
+        self.pb.set_position(trainer.iteration as u64);
+        self.first = trainer.iteration;
+        self.began = Instant::now();
+    }
+
+    fn stepped(&mut self, trainer: &Trainer, log: &StepLog) {
+        let rate = (trainer.iteration - self.first) as f64 / self.began.elapsed().as_secs_f64().max(1e-9);
+        self.pb.set_position(trainer.iteration as u64);
         let msg = format!(
             "loss {:.4} (L1 {:.4}, SSIM {:.3}, FN {:.4}, PA {:.4}) {} G, {:.1} it/s",
             log.loss, log.l1, log.ssim, log.fn_loss, log.pa_loss, log.gaussians, rate
         );
         // Without a terminal the bar is hidden: log a line every 10% instead.
-        let tenth = (cfg.run.iterations / 10).max(1);
-        if pb.is_hidden() && (trainer.iteration % tenth == 0 || trainer.iteration == first + 1) {
+        let tenth = (self.iterations / 10).max(1);
+        if self.pb.is_hidden() && (trainer.iteration.is_multiple_of(tenth) || trainer.iteration == self.first + 1) {
             let t = log.times;
             eprintln!(
                 "[{:>6}/{}] {msg}; ms: field {:.0} render {:.0} losses {:.0} backward {:.0} optim {:.0} densify {:.0}",
                 trainer.iteration,
-                cfg.run.iterations,
+                self.iterations,
                 t.field * 1e3,
                 t.render * 1e3,
                 t.losses * 1e3,
@@ -168,27 +121,40 @@ pub fn run_completion(
                 t.densify * 1e3
             );
         }
-        pb.set_message(msg);
-        let every = cfg.run.checkpoint_every;
-        if every > 0 && trainer.iteration % every == 0 && trainer.iteration < cfg.run.iterations {
-            trainer.save_checkpoint(&ck_dir)?;
+        self.pb.set_message(msg);
+    }
+
+    fn should_stop(&self) -> bool {
+        self.stop.load(Ordering::SeqCst)
+    }
+}
+
+/// Runs the optimisation with a progress bar, checkpoints and Ctrl-C handling; writes outputs.
+/// `None` when interrupted (the checkpoint is saved).
+pub fn run_completion(
+    case: &Case,
+    cfg: Config,
+    backend: BackendKind,
+    out: &Path,
+    start: Start,
+) -> Result<Option<RunSummary>> {
+    let device = backend.device()?.autodiff();
+    let mut terminal = Terminal::new();
+    match completion::run_completion(case, cfg, device, out, start, &mut terminal)? {
+        Outcome::Finished(summary) => {
+            terminal.pb.finish_with_message(format!("done in {:.1} s", terminal.began.elapsed().as_secs_f64()));
+            Ok(Some(*summary))
         }
-        if stop.load(Ordering::SeqCst) {
-            let ck = trainer.save_checkpoint(&ck_dir)?;
-            pb.abandon_with_message(format!("interrupted; checkpoint saved to {}", ck.display()));
+        Outcome::Interrupted { checkpoint } => {
+            terminal.pb.abandon_with_message(format!("interrupted; checkpoint saved to {}", checkpoint.display()));
             eprintln!(
                 "resume with: ctadsa complete --case {} ... --out {} --resume",
                 case.dir.display(),
                 out.display()
             );
-            return Ok(None);
+            Ok(None)
         }
     }
-    pb.finish_with_message(format!("done in {:.1} s", start.elapsed().as_secs_f64()));
-    trainer.save_checkpoint(&ck_dir)?;
-    let summary = write_outputs(out, case, &trainer)?;
-    ctadsa_core::report::write_report(out)?;
-    Ok(Some(summary))
 }
 
 /// Prints the metrics of a run next to those of the prior alone.
@@ -212,7 +178,7 @@ pub fn print_summary(summary: &RunSummary, out: &Path) {
     };
     println!("\n| region | surface | CD mean (mm) | CD sum (mm) | HD95 (mm) | HD max (mm) |");
     println!("|---|---|---:|---:|---:|---:|");
-    let row = |region: &str, what: &str, s: &ctadsa_core::metrics::SurfaceScores| {
+    let row = |region: &str, what: &str, s: &ctadsa_core::eval::metrics::SurfaceScores| {
         println!(
             "| {region} | {what} | {:.3} | {:.3} | {:.3} | {:.3} |",
             s.cd_mean_mm, s.cd_sum_mm, s.hd95_mm, s.hd_mm

@@ -4,8 +4,8 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use clap::Args;
-use ctadsa_core::case::Case;
-use ctadsa_core::diagnose::diagnose_run;
+use ctadsa_core::data::case::Case;
+use ctadsa_core::eval::diagnose::diagnose_run;
 
 #[derive(Args)]
 pub struct DiagnoseArgs {

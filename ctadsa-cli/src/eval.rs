@@ -5,10 +5,10 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use clap::Args;
-use ctadsa_core::eval::{EvalOptions, EvalReport, evaluate_files};
-use ctadsa_core::metrics::{RegionScores, SurfaceScores};
-use ctadsa_core::tree::prior::split_by_diameter;
-use ctadsa_core::tree::swc::read_swc;
+use ctadsa_core::data::tree::prior::split_by_diameter;
+use ctadsa_core::data::tree::swc::read_swc;
+use ctadsa_core::eval::metrics::{RegionScores, SurfaceScores};
+use ctadsa_core::eval::score::{EvalOptions, EvalReport, evaluate_files};
 
 #[derive(Args)]
 pub struct EvalArgs {

@@ -12,7 +12,7 @@ pub struct ReportArgs {
 }
 
 pub fn run(args: ReportArgs) -> Result<()> {
-    let path = ctadsa_core::report::write_report(&args.run_dir)?;
+    let path = ctadsa_core::output::report::write_report(&args.run_dir)?;
     println!("report written to {}", path.display());
     Ok(())
 }

@@ -4,11 +4,11 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
-use ctadsa_core::projector::noise::NoiseModel;
-use ctadsa_core::synth::presets::GeometryPreset;
-use ctadsa_core::synth::{Anatomy, PoseErrorSpec, SynthConfig, synthesize};
-use ctadsa_core::tree::prior::PriorThreshold;
-use ctadsa_core::tree::procedural::ProceduralTree;
+use ctadsa_core::data::projector::noise::NoiseModel;
+use ctadsa_core::data::synth::presets::GeometryPreset;
+use ctadsa_core::data::synth::{Anatomy, PoseErrorSpec, SynthConfig, synthesize};
+use ctadsa_core::data::tree::prior::PriorThreshold;
+use ctadsa_core::data::tree::procedural::ProceduralTree;
 
 use crate::progress::bar;
 

@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-use ctadsa_core::case::Case;
+use ctadsa_core::data::case::Case;
 
 fn ctadsa(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_ctadsa")).args(args).output().expect("ctadsa runs")

@@ -2,24 +2,10 @@
 //! and exits non-zero; `--resume` finishes it.
 
 use std::io::{BufRead, BufReader};
-use std::path::PathBuf;
 use std::process::{Command, Stdio};
 
-fn tmp(name: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("cli-{name}-{}", std::process::id()))
-}
-
-const BIN: &str = env!("CARGO_BIN_EXE_ctadsa");
-
-/// A small procedural case synthesised into `dir`.
-fn small_case(dir: &std::path::Path) {
-    let synth = Command::new(BIN)
-        .args(["synth", "--out", dir.to_str().unwrap(), "--terminals", "16", "--detector-px", "96"])
-        .args(["--binning", "2", "--voxel-mm", "0.6"])
-        .output()
-        .unwrap();
-    assert!(synth.status.success(), "{}", String::from_utf8_lossy(&synth.stderr));
-}
+mod common;
+use common::{BIN, small_case, tmp};
 
 /// `ctadsa complete` on `case` into `run` with the quick config shrunk: `iterations`, a
 /// checkpoint every `every` steps, `n1` + `n2` Gaussians, no densification; then `extra`.

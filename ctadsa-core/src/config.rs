@@ -8,7 +8,7 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{CoreError, Result, read_file};
-use crate::model::field::FieldConfig;
+use crate::method::model::field::FieldConfig;
 
 /// How the N2 seeds are chosen.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -95,6 +95,10 @@ pub struct InitConfig {
     /// must show residual (the vessels behind the prior in any view are never seeded). Off by
     /// default: on one BraVa tree it traded recall for false surface (docs/RESULTS.md).
     pub occluded_views_support: bool,
+    /// With `occluded_views_support`: a voxel that a view passed only because the prior hides
+    /// it is kept only when its 26-connected group of supported voxels holds a voxel that every
+    /// view supports with residual, or comes within `connected_to_prior_mm` of the prior.
+    pub occluded_connected: bool,
     /// Keep only seeds in connected groups of supported voxels that come within this distance
     /// (mm) of the prior: a vessel tree is connected, while the intersections of two views'
     /// back-projections ("ghosts") float free. 0 = off. Measured on the 8 BraVa trees
@@ -117,6 +121,7 @@ impl Default for InitConfig {
             n2_voxel_mm: 0.0,
             knn: 3,
             occluded_views_support: false,
+            occluded_connected: true,
             connected_to_prior_mm: 3.0,
             connected_max_views: 2,
         }
@@ -158,7 +163,7 @@ pub struct OptimConfig {
     pub epsilon: f64,
     /// Adam weight decay on the field (reference 5e-5).
     pub field_weight_decay: f64,
-    /// Which Adam: `fused` (one pass per parameter, [`crate::optim::FusedAdam`]) or `burn`
+    /// Which Adam: `fused` (one pass per parameter, [`crate::method::optim::FusedAdam`]) or `burn`
     /// (burn's `Adam`, the reference); the same update rule and checkpoint format.
     pub adam: AdamImpl,
 }
@@ -511,7 +516,7 @@ impl Config {
             "must be in [0, 100] mm",
         )?;
         check(
-            (1..=crate::eval::MAX_SAMPLES).contains(&self.output.metric_samples),
+            (1..=crate::eval::score::MAX_SAMPLES).contains(&self.output.metric_samples),
             "output.metric_samples",
             "must be in 1..=10,000,000",
         )?;

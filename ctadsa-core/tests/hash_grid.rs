@@ -4,8 +4,8 @@
 #![allow(deprecated)] // burn-ndarray is deprecated in burn 0.22; it is the CPU backend the tests use.
 
 use burn::tensor::{Device, Distribution, Tensor, TensorData};
-use ctadsa_core::model::hash_grid::{HashGrid, HashGridConfig, encode_reference};
-use ctadsa_core::model::host_vec;
+use ctadsa_core::method::model::hash_grid::{HashGrid, HashGridConfig, encode_reference};
+use ctadsa_core::method::model::host_vec;
 
 fn config() -> HashGridConfig {
     // Small table so that both dense and hashed levels occur.

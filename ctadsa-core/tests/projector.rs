@@ -1,10 +1,10 @@
 //! The voxel projector used to synthesise DSA views: analytic checks (sphere chords, detector
 //! mass, point phantom in the renderer's conventions) and plastimatch's DRR as an outside peer.
 
-use ctadsa_core::projector::project_volume;
-use ctadsa_core::tree::Segment;
-use ctadsa_core::volume::rasterize::rasterize_segments;
-use ctadsa_core::volume::{Grid, Volume};
+use ctadsa_core::data::projector::project_volume;
+use ctadsa_core::data::tree::Segment;
+use ctadsa_core::data::volume::rasterize::rasterize_segments;
+use ctadsa_core::data::volume::{Grid, Volume};
 use ctadsa_render::{ConeBeamView, TigreGeometry};
 use glam::DVec3;
 

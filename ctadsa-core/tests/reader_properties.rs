@@ -3,10 +3,10 @@
 
 use std::path::Path;
 
-use ctadsa_core::case::CaseFile;
 use ctadsa_core::config::Config;
-use ctadsa_core::mesh::io::{parse_ply, parse_stl};
-use ctadsa_core::tree::swc::{MAX_COORDINATE_MM, MAX_RADIUS_MM, parse_swc};
+use ctadsa_core::data::case::CaseFile;
+use ctadsa_core::data::mesh::io::{parse_ply, parse_stl};
+use ctadsa_core::data::tree::swc::{MAX_COORDINATE_MM, MAX_RADIUS_MM, parse_swc};
 use proptest::prelude::*;
 
 /// Numbers as they appear in real and broken files.

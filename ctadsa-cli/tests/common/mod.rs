@@ -1,0 +1,28 @@
+//! Helpers shared by the CLI tests: the binary, scratch folders, a small synthetic case.
+#![allow(dead_code)] // each test file uses a subset
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+/// The `ctadsa` binary built for these tests.
+pub const BIN: &str = env!("CARGO_BIN_EXE_ctadsa");
+
+/// A scratch path for one test (removed by the test when it is done).
+pub fn tmp(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("cli-{name}-{}", std::process::id()))
+}
+
+/// A small procedural case (16 terminals, 96² px views binned by 2) from `seed` in `dir`.
+pub fn small_case_from(dir: &Path, seed: u64) {
+    let synth = Command::new(BIN)
+        .args(["synth", "--out", dir.to_str().unwrap(), "--terminals", "16", "--detector-px", "96"])
+        .args(["--binning", "2", "--voxel-mm", "0.6", "--seed", &seed.to_string()])
+        .output()
+        .unwrap();
+    assert!(synth.status.success(), "{}", String::from_utf8_lossy(&synth.stderr));
+}
+
+/// [`small_case_from`] with the default seed.
+pub fn small_case(dir: &Path) {
+    small_case_from(dir, 1)
+}

@@ -1,0 +1,332 @@
+//! The case folder: one `case.json` describing the DSA views (geometry in mm and image files),
+//! what the image values mean, the working volume, the prior mesh, optional ground truth and the
+//! provenance of everything. See `docs/DATA.md` for the format.
+
+pub mod images;
+
+use std::path::{Path, PathBuf};
+
+use ctadsa_render::{ConeBeamView, Intrinsics, TigreGeometry, ViewSet};
+use glam::DMat4;
+use serde::{Deserialize, Serialize};
+
+use crate::data::mesh::{TriMesh, io::read_mesh};
+use crate::data::volume::{BoxMm, Grid};
+use crate::error::{CoreError, Result, check_file_name, read_file, write_file};
+use images::{Image, read_image};
+
+/// The value of `format` in every case file.
+pub const CASE_FORMAT: &str = "ctadsa-case";
+/// The case format version this library writes and reads.
+pub const CASE_VERSION: u32 = 1;
+/// The case file name inside a case folder.
+pub const CASE_FILE: &str = "case.json";
+
+/// Where the data came from.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Provenance {
+    /// The anatomy's source (e.g. "BraVa BG0002 (NeuroMorpho.Org), Wright et al. 2013").
+    pub source: String,
+    /// The program and settings that made the case.
+    pub generator: String,
+    /// Free-form notes (licences, commits, modifications).
+    #[serde(default)]
+    pub notes: Vec<String>,
+}
+
+/// What the pixel values are.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ImageValues {
+    /// Human-readable units, e.g. "contrast × mm (line integral)".
+    pub units: String,
+    /// If the images were divided by a constant (the reference divides by the maximum over all
+    /// views), that constant: physical value = stored value × `normalised_by`.
+    #[serde(default)]
+    pub normalised_by: Option<f64>,
+    /// Contrast (value per mm of vessel) used to synthesise the images, when known.
+    #[serde(default)]
+    pub contrast_per_mm: Option<f64>,
+}
+
+/// A view's geometry: TIGRE-style C-arm parameters or an explicit registration result.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum ViewGeometry {
+    /// C-arm parameters (mm, degrees), conventions of `ctadsa_render::TigreGeometry`.
+    Tigre {
+        dsd_mm: f64,
+        dso_mm: f64,
+        detector_px: [u32; 2],
+        pixel_mm: [f64; 2],
+        #[serde(default)]
+        offset_mm: [f64; 2],
+        primary_deg: f64,
+        #[serde(default)]
+        secondary_deg: f64,
+    },
+    /// A world-to-camera matrix (rows; mm) and pinhole intrinsics (px), e.g. from a 2-D/3-D
+    /// registration: camera x along image columns, y along rows (down), z from the source
+    /// towards the detector.
+    Matrix { world_to_camera: [[f64; 4]; 4], focal_px: [f64; 2], principal_px: [f64; 2], detector_px: [u32; 2] },
+}
+
+impl ViewGeometry {
+    /// From TIGRE parameters.
+    pub fn from_tigre(g: &TigreGeometry) -> Self {
+        ViewGeometry::Tigre {
+            dsd_mm: g.dsd_mm,
+            dso_mm: g.dso_mm,
+            detector_px: g.detector_px,
+            pixel_mm: g.pixel_mm,
+            offset_mm: g.offset_mm,
+            primary_deg: g.primary_deg,
+            secondary_deg: g.secondary_deg,
+        }
+    }
+
+    /// The renderer's view.
+    pub fn to_view(&self) -> std::result::Result<ConeBeamView, ctadsa_render::RenderError> {
+        match *self {
+            ViewGeometry::Tigre { dsd_mm, dso_mm, detector_px, pixel_mm, offset_mm, primary_deg, secondary_deg } => {
+                ConeBeamView::from_tigre(&TigreGeometry {
+                    dsd_mm,
+                    dso_mm,
+                    detector_px,
+                    pixel_mm,
+                    offset_mm,
+                    primary_deg,
+                    secondary_deg,
+                })
+            }
+            ViewGeometry::Matrix { world_to_camera, focal_px, principal_px, detector_px } => {
+                let m = DMat4::from_cols_array_2d(&world_to_camera).transpose();
+                ConeBeamView::from_world_to_camera(
+                    m,
+                    Intrinsics { focal_px, principal_px },
+                    detector_px[0],
+                    detector_px[1],
+                )
+            }
+        }
+    }
+
+    /// Detector size `[width, height]` in pixels.
+    pub fn detector_px(&self) -> [u32; 2] {
+        match self {
+            ViewGeometry::Tigre { detector_px, .. } | ViewGeometry::Matrix { detector_px, .. } => *detector_px,
+        }
+    }
+}
+
+/// One view of the case.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ViewEntry {
+    /// Short name ("ap", "lat", "oblique-45").
+    pub name: String,
+    /// The image the method uses, relative to the case folder (`.tiff` exact, or `.png`).
+    pub image: String,
+    /// Value per count when `image` is a 16-bit PNG.
+    #[serde(default)]
+    pub png_scale: Option<f64>,
+    /// A 16-bit PNG copy for viewing, relative to the case folder, with its scale.
+    #[serde(default)]
+    pub preview_png: Option<String>,
+    pub geometry: ViewGeometry,
+}
+
+/// The prior (what a CTA segmentation shows).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PriorEntry {
+    /// Prior surface mesh (OBJ, PLY or STL, world mm), relative to the case folder.
+    pub mesh: String,
+    /// How it was made, e.g. "segments with diameter ≥ 1.5 mm".
+    #[serde(default)]
+    pub description: String,
+    /// The diameter threshold (mm) used, if any.
+    #[serde(default)]
+    pub threshold_mm: Option<f64>,
+}
+
+/// Ground truth for evaluation (never read by the reconstruction).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GroundTruth {
+    /// The complete vessel surface.
+    pub complete_mesh: String,
+    /// The vessels missing from the prior.
+    #[serde(default)]
+    pub missing_mesh: Option<String>,
+    /// The complete label volume (NIfTI).
+    #[serde(default)]
+    pub labels: Option<String>,
+    /// The centreline tree (SWC), when the case came from one.
+    #[serde(default)]
+    pub tree: Option<String>,
+    /// When the images were made with view poses that differ from the geometry written in the
+    /// case (a simulated registration error), the true correction of each view
+    /// (`ctadsa_core::method::pose` convention: `[ω (rad), t (mm)]`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub view_corrections: Option<Vec<[f64; 6]>>,
+}
+
+/// The content of `case.json`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CaseFile {
+    /// Always [`CASE_FORMAT`].
+    pub format: String,
+    /// [`CASE_VERSION`].
+    pub version: u32,
+    pub name: String,
+    pub provenance: Provenance,
+    pub image_values: ImageValues,
+    /// The working volume: the box the vessels lie in (mm) and the voxel size used for it.
+    pub volume: VolumeEntry,
+    pub views: Vec<ViewEntry>,
+    #[serde(default)]
+    pub prior: Option<PriorEntry>,
+    #[serde(default)]
+    pub ground_truth: Option<GroundTruth>,
+}
+
+/// The reconstruction box.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct VolumeEntry {
+    pub min_mm: [f64; 3],
+    pub max_mm: [f64; 3],
+    /// Voxel edge of the working grid (mm).
+    pub voxel_mm: f64,
+}
+
+impl VolumeEntry {
+    /// As a box.
+    pub fn bounds(&self) -> BoxMm {
+        BoxMm { min_mm: self.min_mm, max_mm: self.max_mm }
+    }
+}
+
+/// A case read from disk, with its images loaded and checked.
+#[derive(Debug, Clone)]
+pub struct Case {
+    /// The folder.
+    pub dir: PathBuf,
+    pub file: CaseFile,
+    /// The views, all of one detector size.
+    pub views: ViewSet,
+    /// One image per view, matching its detector size.
+    pub images: Vec<Image>,
+}
+
+impl CaseFile {
+    /// Parses and checks `case.json` text (`path` is for messages).
+    pub fn parse(text: &str, path: &Path) -> Result<Self> {
+        let file: CaseFile =
+            serde_json::from_str(text).map_err(|e| CoreError::format(path, format!("invalid case file: {e}")))?;
+        if file.format != CASE_FORMAT {
+            return Err(CoreError::format(path, format!("`format` is `{}`, expected `{CASE_FORMAT}`", file.format)));
+        }
+        if file.version != CASE_VERSION {
+            return Err(CoreError::format(
+                path,
+                format!("case version {} is not supported (this build reads {CASE_VERSION})", file.version),
+            ));
+        }
+        if file.views.is_empty() {
+            return Err(CoreError::format(path, "the case has no views"));
+        }
+        check_file_name(&file.name, "case name").map_err(|e| CoreError::format(path, e))?;
+        for v in &file.views {
+            check_file_name(&v.name, "view name").map_err(|e| CoreError::format(path, e))?;
+        }
+        for v in &file.views {
+            if let Some(s) = v.png_scale
+                && !(s.is_finite() && s > 0.0)
+            {
+                return Err(CoreError::format(
+                    path,
+                    format!("view `{}`: `png_scale` must be a positive number, got {s}", v.name),
+                ));
+            }
+        }
+        let b = file.volume.bounds();
+        let finite = b.min_mm.iter().chain(&b.max_mm).all(|v| v.is_finite());
+        if !finite || !(0..3).all(|a| b.max_mm[a] > b.min_mm[a]) || !(file.volume.voxel_mm > 0.0) {
+            return Err(CoreError::format(path, format!("degenerate working volume {:?}", file.volume)));
+        }
+        Grid::covering(&b, file.volume.voxel_mm)
+            .map_err(|e| CoreError::format(path, format!("`volume.voxel_mm` {}: {e}", file.volume.voxel_mm)))?;
+        Ok(file)
+    }
+
+    /// Writes `case.json` into `dir`.
+    pub fn save(&self, dir: &Path) -> Result<()> {
+        let text = serde_json::to_string_pretty(self).map_err(|e| CoreError::invalid(e.to_string()))?;
+        write_file(&dir.join(CASE_FILE), text.as_bytes())
+    }
+}
+
+impl Case {
+    /// Reads `dir/case.json` and all view images; checks geometry, image sizes and pixels.
+    pub fn load(dir: &Path) -> Result<Self> {
+        let path = dir.join(CASE_FILE);
+        let text = String::from_utf8(read_file(&path)?).map_err(|_| CoreError::format(&path, "not UTF-8 text"))?;
+        let file = CaseFile::parse(&text, &path)?;
+        let mut views = Vec::new();
+        let mut images = Vec::new();
+        for (i, v) in file.views.iter().enumerate() {
+            let view =
+                v.geometry.to_view().map_err(|e| CoreError::format(&path, format!("view {i} (`{}`): {e}", v.name)))?;
+            let img_path = dir.join(&v.image);
+            let img = read_image(&img_path, v.png_scale)?;
+            if (img.width, img.height) != (view.width(), view.height()) {
+                return Err(CoreError::format(
+                    &img_path,
+                    format!(
+                        "image is {} × {} pixels but view `{}` has a {} × {} detector",
+                        img.width,
+                        img.height,
+                        v.name,
+                        view.width(),
+                        view.height()
+                    ),
+                ));
+            }
+            views.push(view);
+            images.push(img);
+        }
+        let views = ViewSet::new(views).map_err(|e| CoreError::format(&path, e.to_string()))?;
+        Ok(Self { dir: dir.to_path_buf(), file, views, images })
+    }
+
+    /// The prior mesh, if the case has one.
+    pub fn prior_mesh(&self) -> Result<Option<TriMesh>> {
+        self.file.prior.as_ref().map(|p| read_mesh(&self.dir.join(&p.mesh))).transpose()
+    }
+
+    /// Path of a file named in the case, relative to the case folder.
+    pub fn path(&self, relative: &str) -> PathBuf {
+        self.dir.join(relative)
+    }
+
+    /// The same case with only the views at `indices`.
+    pub fn select_views(&self, indices: &[usize]) -> Result<Self> {
+        let mut out = self.clone();
+        for &i in indices {
+            if i >= self.file.views.len() {
+                return Err(CoreError::invalid(format!(
+                    "view {i} does not exist (case has {})",
+                    self.file.views.len()
+                )));
+            }
+        }
+        out.file.views = indices.iter().map(|&i| self.file.views[i].clone()).collect();
+        out.images = indices.iter().map(|&i| self.images[i].clone()).collect();
+        out.views = self.views.select(indices)?;
+        Ok(out)
+    }
+}

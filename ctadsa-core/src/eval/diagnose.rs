@@ -1,0 +1,202 @@
+//! Where the missing vessels are lost (`ctadsa diagnose`): every point of the missing vessels'
+//! centreline (a synthetic case made from a tree) is put in the first class that applies:
+//!
+//! 1. **found** — the completed surface passes within radius + 0.5 mm (the recall criterion);
+//! 2. **not in the masks** — some view's vessel mask (`init.mask_threshold`) misses its pixel,
+//!    so nothing image-driven can start there;
+//! 3. **behind the prior** — in the masks, but some view's pixel lies in the dilated projection
+//!    of the prior, which the residual removes: no N2 seed can start there;
+//! 4. **not seeded** — in every residual, yet no N2 seed within [`SEED_RADIUS_MM`];
+//! 5. **misplaced** — seeded, and in every view the ray through it crosses density above the
+//!    iso-level somewhere else (> [`ELSEWHERE_MM`] from the point and from every true vessel):
+//!    the views' signal was explained at a wrong depth;
+//! 6. **faded** — seeded, but the density there stayed below the iso-level.
+//!
+//! Each class is a fraction of the missing centreline length.
+
+use std::path::Path;
+
+use ctadsa_render::ConeBeamView;
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+
+use crate::config::Config;
+use crate::data::case::Case;
+use crate::data::case::images::Image;
+use crate::data::masks::{Mask, prior_solid, silhouettes, vessel_mask};
+use crate::data::mesh::distance::SurfaceIndex;
+use crate::data::mesh::io::read_mesh;
+use crate::data::tree::Segment;
+use crate::data::volume::Grid;
+use crate::data::volume::Volume;
+use crate::data::volume::nifti_io::read_nifti;
+use crate::error::{CoreError, Result, read_file};
+use crate::eval::metrics::nearest_distances;
+use crate::eval::score::CaseTruth;
+use crate::eval::surface_metrics::{RECALL_SLACK_MM, centreline_points};
+use crate::method::init::initialise;
+use crate::method::model::ScaleBounds;
+use crate::method::train::{prepare_views, run_working_box};
+
+/// An N2 seed this close (mm) to a centreline point counts as seeding it.
+pub const SEED_RADIUS_MM: f64 = 1.5;
+/// Density farther than this (mm) from the point and from the true surface is "elsewhere".
+pub const ELSEWHERE_MM: f64 = 2.0;
+
+/// Fractions of the missing centreline length in each class (they sum to 1).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct LossBreakdown {
+    pub found: f64,
+    pub not_in_masks: f64,
+    pub behind_prior: f64,
+    pub not_seeded: f64,
+    pub misplaced: f64,
+    pub faded: f64,
+    /// Missing centreline length (mm).
+    pub length_mm: f64,
+}
+
+/// What the diagnosis looks at.
+pub struct DiagnoseInputs<'a> {
+    pub views: &'a [ConeBeamView],
+    pub images: &'a [Image],
+    pub mask_threshold: f64,
+    /// Per view: the dilated projection of the prior (what the residual removes).
+    pub prior_silhouettes: &'a [Mask],
+    /// The N2 seeds (mm).
+    pub seeds: &'a [DVec3],
+    /// The run's density volume and iso-level.
+    pub density: &'a Volume<f32>,
+    pub level: f64,
+    pub completed: &'a SurfaceIndex,
+    pub truth: &'a SurfaceIndex,
+}
+
+fn pixel(view: &ConeBeamView, p: DVec3) -> Option<usize> {
+    let uv = view.project(p)?;
+    let (c, r) = (uv.x.round(), uv.y.round());
+    (c >= 0.0 && r >= 0.0 && c < view.width() as f64 && r < view.height() as f64)
+        .then(|| r as usize * view.width() as usize + c as usize)
+}
+
+/// Density of the voxel containing `p` (0 outside the volume).
+fn density_at(v: &Volume<f32>, p: DVec3) -> f64 {
+    let g = v.grid;
+    let ijk: Vec<f64> = (0..3).map(|a| ((p[a] - g.origin_mm[a]) / g.spacing_mm[a]).floor()).collect();
+    if ijk.iter().zip(g.dims).any(|(&x, d)| !(x >= 0.0 && x < d as f64)) {
+        return 0.0;
+    }
+    v.get(ijk[0] as usize, ijk[1] as usize, ijk[2] as usize) as f64
+}
+
+/// Whether the ray from `view`'s source through `p` crosses above-level density elsewhere.
+fn explained_elsewhere(view: &ConeBeamView, p: DVec3, inp: &DiagnoseInputs) -> bool {
+    let s = view.source_mm();
+    let dir = (p - s).normalize();
+    let b = inp.density.grid.bounds();
+    let step = inp.density.grid.spacing_mm.iter().copied().fold(f64::INFINITY, f64::min);
+    // Along the ray, over the span where it can cross the volume's box.
+    let reach = (0..3).map(|a| b.size_mm()[a]).fold(0.0f64, |x, y| x.hypot(y));
+    let mid = (p - s).length();
+    let n = (2.0 * reach / step).ceil() as usize;
+    (0..n).any(|k| {
+        let q = s + dir * (mid - reach + k as f64 * step);
+        (q - p).length() > ELSEWHERE_MM
+            && b.contains(q)
+            && density_at(inp.density, q) >= inp.level
+            && inp.truth.distance(q) > ELSEWHERE_MM
+    })
+}
+
+/// Classifies the missing centreline (points every ≤ 0.1 mm).
+pub fn diagnose(missing: &[Segment], inp: &DiagnoseInputs) -> LossBreakdown {
+    let masks: Vec<Mask> = inp.images.iter().map(|i| vessel_mask(i, inp.mask_threshold)).collect();
+    let points = centreline_points(missing);
+    let centres: Vec<DVec3> = points.iter().map(|p| p.position_mm).collect();
+    let to_seed = nearest_distances(&centres, inp.seeds);
+    let to_completed = inp.completed.distances(&centres);
+    let mut out = LossBreakdown::default();
+    for (k, cp) in points.iter().enumerate() {
+        let (p, r, w) = (cp.position_mm, cp.radius_mm, cp.length_mm);
+        let px: Vec<Option<usize>> = inp.views.iter().map(|v| pixel(v, p)).collect();
+        let class = if to_completed[k] <= r + RECALL_SLACK_MM {
+            &mut out.found
+        } else if px.iter().zip(&masks).any(|(q, m)| !q.is_some_and(|q| m.data[q])) {
+            &mut out.not_in_masks
+        } else if px.iter().zip(inp.prior_silhouettes).any(|(q, m)| q.is_some_and(|q| m.data[q])) {
+            &mut out.behind_prior
+        } else if !(to_seed[k] <= SEED_RADIUS_MM) {
+            &mut out.not_seeded
+        } else if inp.views.iter().all(|v| explained_elsewhere(v, p, inp)) {
+            &mut out.misplaced
+        } else {
+            &mut out.faded
+        };
+        *class += w;
+        out.length_mm += w;
+    }
+    if out.length_mm > 0.0 {
+        let l = out.length_mm;
+        for f in [
+            &mut out.found,
+            &mut out.not_in_masks,
+            &mut out.behind_prior,
+            &mut out.not_seeded,
+            &mut out.misplaced,
+            &mut out.faded,
+        ] {
+            *f /= l;
+        }
+    }
+    out
+}
+
+/// [`diagnose`] of a finished run (`run_dir` with `config.toml`, `density.nii.gz`,
+/// `summary.json` and the completed mesh) on its synthetic case, which must have a tree.
+pub fn diagnose_run(case: &Case, run_dir: &Path) -> Result<LossBreakdown> {
+    let cfg = Config::load(Some(&run_dir.join("config.toml")), &[])?;
+    let truth = CaseTruth::load(case)?.ok_or_else(|| CoreError::invalid("the case has no ground truth"))?;
+    let missing = truth
+        .missing_centreline
+        .as_ref()
+        .ok_or_else(|| CoreError::invalid("the case has no centreline tree (gt/tree.swc) and prior threshold"))?;
+    let (views, images) = prepare_views(case, &cfg)?;
+    let prior = case.prior_mesh()?;
+    let working_box = run_working_box(case, &cfg, &views, &images, prior.as_ref())?;
+    let h = case.file.volume.voxel_mm;
+    let bounds = ScaleBounds::from_voxel(h, cfg.model.scale_min_voxels, cfg.model.scale_max_voxels);
+    let init = initialise(&cfg.init, views.views(), &images, prior.as_ref(), &working_box, h, bounds, cfg.run.seed)?;
+    let seeds: Vec<DVec3> = init.gaussians.means[3 * init.n1..]
+        .chunks_exact(3)
+        .map(|c| DVec3::new(c[0] as f64, c[1] as f64, c[2] as f64))
+        .collect();
+    let prior_silhouettes: Vec<Mask> = match &prior {
+        Some(p) => silhouettes(&prior_solid(p, Grid::covering(&working_box, h)?), views.views())
+            .into_iter()
+            .map(|m| m.dilated(cfg.init.prior_dilation_px))
+            .collect(),
+        None => {
+            images.iter().map(|i| Mask { width: i.width, height: i.height, data: vec![false; i.data.len()] }).collect()
+        }
+    };
+    let density = read_nifti(&run_dir.join("density.nii.gz"))?;
+    let summary_path = run_dir.join("summary.json");
+    let summary: serde_json::Value = serde_json::from_slice(&read_file(&summary_path)?)
+        .map_err(|e| CoreError::format(&summary_path, format!("invalid run summary: {e}")))?;
+    let level = summary["mc_level"]
+        .as_f64()
+        .ok_or_else(|| CoreError::format(&summary_path, "no `mc_level` in the run summary"))?;
+    let completed = read_mesh(&run_dir.join(format!("mesh.{}", cfg.output.mesh_format)))?;
+    let inputs = DiagnoseInputs {
+        views: views.views(),
+        images: &images,
+        mask_threshold: cfg.init.mask_threshold,
+        prior_silhouettes: &prior_silhouettes,
+        seeds: &seeds,
+        density: &density,
+        level,
+        completed: &SurfaceIndex::new(&completed),
+        truth: &SurfaceIndex::new(&truth.complete),
+    };
+    Ok(diagnose(missing, &inputs))
+}

@@ -1,0 +1,8 @@
+//! Evaluation against ground truth: exact surface distances and coverage, the paper's
+//! point-set convention (with ICP), scoring of a run, and where missing vessels are lost.
+
+pub mod diagnose;
+pub mod icp;
+pub mod metrics;
+pub mod score;
+pub mod surface_metrics;

@@ -1,0 +1,415 @@
+//! Initial Gaussians from what a user has — the DSA images, their geometry and the prior mesh:
+//!
+//! - N1: centres sampled area-uniformly on the prior surface;
+//! - N2: the residual back-projection. Per view, vessel mask minus the dilated projection of the
+//!   (solid) prior; each voxel of a back-projection grid is looked up in every view's residual
+//!   and kept when supported in all views (intersection) and outside the prior; the N2 voxels
+//!   with the largest geometric-mean residual intensity become centres (jittered inside the voxel).
+//!   Variants: union instead of intersection, uniform random, masks instead of residuals.
+//! - isotropic scales from the mean squared distance to the k nearest other centres, identity
+//!   rotations.
+
+use ctadsa_render::ConeBeamView;
+use glam::DVec3;
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+
+use crate::config::{InitConfig, SeedMode};
+use crate::data::case::images::Image;
+use crate::data::masks::{Mask, prior_solid, silhouettes, vessel_mask};
+use crate::data::mesh::TriMesh;
+use crate::data::mesh::sample::sample_surface;
+use crate::data::volume::{BoxMm, Grid, Volume};
+use crate::error::{CoreError, Result};
+use crate::method::model::{GaussianInit, ScaleBounds};
+
+/// Pixel of a world point in a view (nearest pixel centre), if on the detector.
+#[inline]
+fn pixel_of(view: &ConeBeamView, p: DVec3) -> Option<usize> {
+    let uv = view.project(p)?;
+    let (c, r) = (uv.x.round(), uv.y.round());
+    if c < 0.0 || r < 0.0 || c >= view.width() as f64 || r >= view.height() as f64 {
+        return None;
+    }
+    Some(r as usize * view.width() as usize + c as usize)
+}
+
+/// A supported voxel of the back-projection: its score, its centre (mm) and whether every view
+/// that sees it shows residual there (no view passed it only because the prior hides it).
+type Scored = (f64, DVec3, bool);
+
+/// Seeds scored by the back-projection of per-view support masks and intensity images.
+fn back_project(
+    grid: &Grid,
+    views: &[ConeBeamView],
+    masks: &[Mask],
+    occluded: Option<&[Mask]>,
+    values: &[Image],
+    prior: Option<&Volume<u8>>,
+    intersect: bool,
+) -> Vec<Scored> {
+    // With occlusion masks, a view where the prior hides the pixel supports without residual,
+    // but at least half of the views (rounded up) must see residual.
+    let min_residual = if occluded.is_some() { views.len().div_ceil(2) } else { views.len() };
+    let [nx, ny, nz] = grid.dims;
+    (0..nx)
+        .into_par_iter()
+        .flat_map_iter(|i| {
+            let mut out = Vec::new();
+            for j in 0..ny {
+                for k in 0..nz {
+                    let idx = grid.index(i, j, k);
+                    if prior.is_some_and(|p| p.data[idx] != 0) {
+                        continue;
+                    }
+                    let c = grid.centre_mm(i, j, k);
+                    let (mut supported, mut residual, mut seen) = (0usize, 0usize, 0usize);
+                    let mut log_sum = 0.0;
+                    let mut sum = 0.0;
+                    for (vi, ((v, m), img)) in views.iter().zip(masks).zip(values).enumerate() {
+                        let Some(px) = pixel_of(v, c) else { continue };
+                        seen += 1;
+                        let hidden = occluded.is_some_and(|o| o[vi].data[px]);
+                        if m.data[px] || hidden {
+                            supported += 1;
+                        }
+                        // Scored by the views that show residual (an occluded view's pixel is
+                        // bright from the prior in front of or behind it).
+                        if m.data[px] {
+                            residual += 1;
+                            let val = (img.data[px] as f64).max(1e-12);
+                            log_sum += val.ln();
+                            sum += val;
+                        }
+                    }
+                    let keep =
+                        if intersect { supported == views.len() && residual >= min_residual } else { supported > 0 };
+                    if keep {
+                        let score = if intersect { (log_sum / residual.max(1) as f64).exp() } else { sum };
+                        out.push((score, c, residual == seen));
+                    }
+                }
+            }
+            out
+        })
+        .collect()
+}
+
+/// The N2 centres for `mode`.
+#[allow(clippy::too_many_arguments)]
+pub fn n2_seeds(
+    cfg: &InitConfig,
+    views: &[ConeBeamView],
+    images: &[Image],
+    prior: Option<&TriMesh>,
+    bounds: &BoxMm,
+    voxel_mm: f64,
+    seed: u64,
+) -> Result<Vec<DVec3>> {
+    if cfg.n2 == 0 || cfg.n2_mode == SeedMode::None {
+        return Ok(Vec::new());
+    }
+    let h = if cfg.n2_voxel_mm > 0.0 { cfg.n2_voxel_mm } else { voxel_mm };
+    let grid = Grid::covering(bounds, h)?;
+    let solid = prior.map(|p| prior_solid(p, grid));
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x4e32);
+    if cfg.n2_mode == SeedMode::Uniform {
+        let mut out = Vec::with_capacity(cfg.n2);
+        let mut tries = 0usize;
+        while out.len() < cfg.n2 && tries < 1000 * cfg.n2 {
+            tries += 1;
+            let p = DVec3::new(
+                rng.random_range(bounds.min_mm[0]..bounds.max_mm[0]),
+                rng.random_range(bounds.min_mm[1]..bounds.max_mm[1]),
+                rng.random_range(bounds.min_mm[2]..bounds.max_mm[2]),
+            );
+            let inside_prior = solid.as_ref().is_some_and(|s| {
+                let ijk = [0, 1, 2].map(|a| ((p[a] - grid.origin_mm[a]) / h).floor() as usize);
+                ijk.iter().zip(grid.dims).all(|(&i, d)| i < d) && s.get(ijk[0], ijk[1], ijk[2]) != 0
+            });
+            if !inside_prior {
+                out.push(p);
+            }
+        }
+        return Ok(out);
+    }
+    let masks: Vec<Mask> = images.iter().map(|img| vessel_mask(img, cfg.mask_threshold)).collect();
+    let mut occluded: Option<Vec<Mask>> = None;
+    let support: Vec<Mask> = match cfg.n2_mode {
+        SeedMode::AllViewsIntersect => masks.iter().map(|m| m.dilated(cfg.residual_dilation_px)).collect(),
+        _ => {
+            let Some(s) = solid.as_ref() else {
+                return Err(CoreError::invalid(format!("init.n2_mode {:?} needs a prior mesh", cfg.n2_mode)));
+            };
+            let prior_sil: Vec<Mask> = silhouettes(s, views).iter().map(|p| p.dilated(cfg.prior_dilation_px)).collect();
+            if cfg.occluded_views_support {
+                occluded = Some(
+                    masks.iter().zip(&prior_sil).map(|(m, p)| m.dilated(cfg.residual_dilation_px).and(p)).collect(),
+                );
+            }
+            masks.iter().zip(&prior_sil).map(|(m, p)| m.minus(p).dilated(cfg.residual_dilation_px)).collect()
+        }
+    };
+    let intersect = cfg.n2_mode != SeedMode::ResidualUnion;
+    let exclude = if cfg.n2_mode == SeedMode::AllViewsIntersect { None } else { solid.as_ref() };
+    let occluded = occluded.filter(|_| intersect);
+    let mut scored = back_project(&grid, views, &support, occluded.as_deref(), images, exclude, intersect);
+    // Not for the mask-only mode, which ignores the prior by design.
+    if let Some(s) = exclude {
+        if cfg.connected_to_prior_mm > 0.0 && views.len() <= cfg.connected_max_views {
+            scored = connected_to_anchors(scored, s, cfg.connected_to_prior_mm, |_| false);
+        } else if occluded.is_some() && cfg.occluded_connected {
+            // A voxel that a view passed only because the prior hides it must belong to a group
+            // that holds a voxel every view supports with residual, or that reaches the prior.
+            scored = connected_to_anchors(scored, s, cfg.connected_to_prior_mm, |&(_, _, full)| full);
+        }
+    }
+    scored.sort_by(|a, b| b.0.total_cmp(&a.0));
+    scored.truncate(cfg.n2);
+    Ok(scored
+        .into_iter()
+        .map(|(_, c, _)| {
+            c + DVec3::new(rng.random_range(-0.5..0.5), rng.random_range(-0.5..0.5), rng.random_range(-0.5..0.5)) * h
+        })
+        .collect())
+}
+
+/// The scored voxels (centres on `prior`'s grid) whose 26-connected group of scored voxels holds
+/// an anchor or comes within `reach_mm` of the prior solid (`reach_mm` = 0: anchors only).
+fn connected_to_anchors(
+    scored: Vec<Scored>,
+    prior: &Volume<u8>,
+    reach_mm: f64,
+    is_anchor: impl Fn(&Scored) -> bool,
+) -> Vec<Scored> {
+    let grid = prior.grid;
+    let [nx, ny, nz] = grid.dims;
+    let index_of = |c: DVec3| {
+        let ijk = [0, 1, 2].map(|a| ((c[a] - grid.origin_mm[a]) / grid.spacing_mm[a]).floor() as isize);
+        ijk.iter()
+            .zip(grid.dims)
+            .all(|(&i, d)| i >= 0 && (i as usize) < d)
+            .then(|| grid.index(ijk[0] as usize, ijk[1] as usize, ijk[2] as usize))
+    };
+    // Distance² (mm²) of every voxel outside the prior to the prior.
+    let outside = prior.map(|v| u8::from(v == 0));
+    let dist2 = crate::data::volume::edt::squared_edt(&outside);
+    let mut supported = vec![false; grid.len()];
+    let mut reached = vec![false; grid.len()];
+    let mut stack = Vec::new();
+    for s in &scored {
+        if let Some(i) = index_of(s.1) {
+            supported[i] = true;
+            if !reached[i] && (is_anchor(s) || (reach_mm > 0.0 && dist2[i] <= reach_mm * reach_mm)) {
+                reached[i] = true;
+                stack.push(i);
+            }
+        }
+    }
+    // Flood fill from the anchors and the supported voxels within reach of the prior.
+    while let Some(i) = stack.pop() {
+        let (x, y, z) = (i / (ny * nz), (i / nz) % ny, i % nz);
+        for a in x.saturating_sub(1)..(x + 2).min(nx) {
+            for b in y.saturating_sub(1)..(y + 2).min(ny) {
+                for c in z.saturating_sub(1)..(z + 2).min(nz) {
+                    let j = grid.index(a, b, c);
+                    if supported[j] && !reached[j] {
+                        reached[j] = true;
+                        stack.push(j);
+                    }
+                }
+            }
+        }
+    }
+    scored.into_iter().filter(|s| index_of(s.1).is_some_and(|i| reached[i])).collect()
+}
+
+/// Isotropic scale (mm) of each point: sqrt of the mean squared distance to its `k` nearest
+/// other points (a point alone gets `fallback`).
+pub fn knn_scales(points: &[DVec3], k: usize, fallback: f64) -> Vec<f64> {
+    if points.len() < 2 {
+        return vec![fallback; points.len()];
+    }
+    let pts: Vec<[f64; 3]> = points.iter().map(|p| p.to_array()).collect();
+    let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&pts).expect("finite points");
+    let kk = (k + 1).min(points.len());
+    let n = std::num::NonZero::new(kk).expect("k + 1 ≥ 1");
+    tree.query_batch(&pts)
+        .nearest_n::<SquaredEuclidean<f64>>(n)
+        .execute()
+        .into_iter()
+        .map(|res| {
+            let d: Vec<f64> = res.iter().skip(1).map(|r| r.distance).collect();
+            if d.is_empty() { fallback } else { (d.iter().sum::<f64>() / d.len() as f64).sqrt() }
+        })
+        .collect()
+}
+
+/// The initial Gaussians and what went into them.
+#[derive(Debug, Clone)]
+pub struct Initialisation {
+    pub gaussians: GaussianInit,
+    /// How many came from the prior (first) and from the images (after).
+    pub n1: usize,
+    pub n2: usize,
+}
+
+/// N1 + N2 centres with kNN isotropic scales and identity rotations.
+#[allow(clippy::too_many_arguments)]
+pub fn initialise(
+    cfg: &InitConfig,
+    views: &[ConeBeamView],
+    images: &[Image],
+    prior: Option<&TriMesh>,
+    bounds: &BoxMm,
+    voxel_mm: f64,
+    scale_bounds: ScaleBounds,
+    seed: u64,
+) -> Result<Initialisation> {
+    let mut centres: Vec<DVec3> = Vec::new();
+    let use_prior = cfg.n2_mode != SeedMode::AllViewsIntersect;
+    if cfg.n1 > 0 && use_prior {
+        let p = prior.ok_or_else(|| CoreError::invalid("init.n1 > 0 needs a prior mesh (or set init.n1 = 0)"))?;
+        centres.extend(sample_surface(p, cfg.n1, seed));
+    }
+    let n1 = centres.len();
+    centres.extend(n2_seeds(cfg, views, images, prior.filter(|_| use_prior), bounds, voxel_mm, seed)?);
+    let n2 = centres.len() - n1;
+    if centres.is_empty() {
+        return Err(CoreError::invalid("initialisation produced no Gaussian (empty prior and no image support)"));
+    }
+    let scales = knn_scales(&centres, cfg.knn, voxel_mm);
+    let mut g = GaussianInit::default();
+    for (c, s) in centres.iter().zip(scales) {
+        g.means.extend([c.x as f32, c.y as f32, c.z as f32]);
+        let s = (s as f32).clamp(scale_bounds.min_mm, scale_bounds.max_mm);
+        let raw = scale_bounds.inverse(s);
+        g.raw_scales.extend([raw; 3]);
+        g.rotations.extend([1.0, 0.0, 0.0, 0.0]);
+    }
+    Ok(Initialisation { gaussians: g, n1, n2 })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::data::mesh::marching::extract_isosurface;
+    use crate::data::projector::project_volume;
+    use crate::data::tree::Segment;
+    use crate::data::volume::rasterize::rasterize_segments;
+    use ctadsa_render::TigreGeometry;
+
+    fn segment(a: [f64; 3], b: [f64; 3], r: f64) -> Segment {
+        Segment { child: 0, start_mm: DVec3::from(a), end_mm: DVec3::from(b), start_radius_mm: r, end_radius_mm: r }
+    }
+
+    /// Distance (mm) from `p` to the segment `a`–`b`.
+    fn to_segment(p: DVec3, a: [f64; 3], b: [f64; 3]) -> f64 {
+        let (a, b) = (DVec3::from(a), DVec3::from(b));
+        let t = ((p - a).dot(b - a) / (b - a).length_squared()).clamp(0.0, 1.0);
+        (a + t * (b - a) - p).length()
+    }
+
+    const PRIOR: ([f64; 3], [f64; 3]) = ([-10.0, 0.0, 0.0], [10.0, 0.0, 0.0]);
+    const MISSING: ([f64; 3], [f64; 3]) = ([4.0, 5.0, -8.0], [4.0, 5.0, 8.0]);
+
+    /// A thick vessel the prior has and a thin one it misses, seen in three views; the prior
+    /// mesh, the views and their images.
+    fn scene() -> (TriMesh, Vec<ConeBeamView>, Vec<Image>, BoxMm) {
+        let bounds = BoxMm { min_mm: [-15.0; 3], max_mm: [15.0; 3] };
+        let grid = Grid::covering(&bounds, 0.4).unwrap();
+        let complete =
+            rasterize_segments(&[segment(PRIOR.0, PRIOR.1, 1.2), segment(MISSING.0, MISSING.1, 0.6)], grid, 2);
+        let prior = extract_isosurface(&rasterize_segments(&[segment(PRIOR.0, PRIOR.1, 1.2)], grid, 2), 0.5);
+        let views: Vec<ConeBeamView> = [-90.0, 0.0, -45.0]
+            .iter()
+            .map(|&primary_deg| {
+                ConeBeamView::from_tigre(&TigreGeometry {
+                    dsd_mm: 700.0,
+                    dso_mm: 500.0,
+                    detector_px: [64, 64],
+                    pixel_mm: [0.75, 0.75],
+                    offset_mm: [0.0, 0.0],
+                    primary_deg,
+                    secondary_deg: 0.0,
+                })
+                .unwrap()
+            })
+            .collect();
+        let images =
+            project_volume(&complete, &views).into_iter().map(|data| Image { width: 64, height: 64, data }).collect();
+        (prior, views, images, bounds)
+    }
+
+    #[test]
+    fn residual_seeds_lie_on_the_vessel_the_prior_misses() {
+        let (prior, views, images, bounds) = scene();
+        // The missed vessel here floats 3.8 mm from the prior: no connectivity filter.
+        let cfg = InitConfig { n2: 300, prior_dilation_px: 1, connected_to_prior_mm: 0.0, ..InitConfig::default() };
+        let seeds = n2_seeds(&cfg, &views, &images, Some(&prior), &bounds, 0.4, 7).unwrap();
+        assert!(seeds.len() >= 50, "only {} seeds", seeds.len());
+        let on_missing = seeds.iter().filter(|p| to_segment(**p, MISSING.0, MISSING.1) < 1.5).count();
+        let on_prior = seeds.iter().filter(|p| to_segment(**p, PRIOR.0, PRIOR.1) < 1.2).count();
+        eprintln!("residual seeds: {} of {} on the missing vessel", on_missing, seeds.len());
+        assert!(on_missing as f64 >= 0.8 * seeds.len() as f64, "{on_missing} of {} on the missing vessel", seeds.len());
+        assert_eq!(on_prior, 0, "seeds inside the prior");
+    }
+
+    #[test]
+    fn mask_intersection_seeds_both_vessels_and_the_count_is_capped() {
+        let (_, views, images, bounds) = scene();
+        let cfg = InitConfig { n2: 400, n2_mode: SeedMode::AllViewsIntersect, ..InitConfig::default() };
+        let seeds = n2_seeds(&cfg, &views, &images, None, &bounds, 0.4, 7).unwrap();
+        assert!(seeds.len() <= 400);
+        let near = |p: &DVec3| to_segment(*p, MISSING.0, MISSING.1) < 1.5 || to_segment(*p, PRIOR.0, PRIOR.1) < 2.0;
+        let good = seeds.iter().filter(|p| near(p)).count();
+        assert!(good as f64 >= 0.9 * seeds.len() as f64, "{good} of {} near a vessel", seeds.len());
+        assert!(seeds.iter().any(|p| to_segment(*p, PRIOR.0, PRIOR.1) < 2.0), "the prior vessel is seeded too");
+    }
+
+    #[test]
+    fn seeds_connected_to_the_prior_keep_branches_and_drop_floating_vessels() {
+        let bounds = BoxMm { min_mm: [-15.0; 3], max_mm: [15.0; 3] };
+        let grid = Grid::covering(&bounds, 0.4).unwrap();
+        let (branch, floating) = (([4.0, 0.0, 0.0], [4.0, 8.0, 8.0]), ([-8.0, 8.0, -8.0], [-8.0, 8.0, 8.0]));
+        let complete = rasterize_segments(
+            &[segment(PRIOR.0, PRIOR.1, 1.2), segment(branch.0, branch.1, 0.6), segment(floating.0, floating.1, 0.6)],
+            grid,
+            2,
+        );
+        let prior = extract_isosurface(&rasterize_segments(&[segment(PRIOR.0, PRIOR.1, 1.2)], grid, 2), 0.5);
+        let (_, views, _, _) = scene();
+        let images: Vec<Image> =
+            project_volume(&complete, &views).into_iter().map(|data| Image { width: 64, height: 64, data }).collect();
+        let seeds_up_to = |reach: f64, max_views: usize| {
+            let cfg = InitConfig {
+                n2: 2000,
+                prior_dilation_px: 1,
+                connected_to_prior_mm: reach,
+                connected_max_views: max_views,
+                ..InitConfig::default()
+            };
+            n2_seeds(&cfg, &views, &images, Some(&prior), &bounds, 0.4, 7).unwrap()
+        };
+        let seeds_with = |reach: f64| seeds_up_to(reach, 3);
+        let on =
+            |seeds: &[DVec3], s: ([f64; 3], [f64; 3])| seeds.iter().filter(|p| to_segment(**p, s.0, s.1) < 1.5).count();
+        let all = seeds_with(0.0);
+        assert!(on(&all, floating) > 20 && on(&all, branch) > 20, "both vessels are seeded without the filter");
+        let connected = seeds_with(3.0);
+        assert_eq!(on(&connected, floating), 0, "the floating vessel is dropped");
+        assert!(on(&connected, branch) >= on(&all, branch), "the branch keeps its seeds (and gets the freed ones)");
+        assert_eq!(seeds_up_to(3.0, 2), all, "three views are more than connected_max_views: no filter");
+    }
+
+    #[test]
+    fn knn_scales_are_the_rms_distance_to_the_nearest_points() {
+        let points: Vec<DVec3> = (0..10).map(|i| DVec3::new(i as f64, 0.0, 0.0)).collect();
+        let s = knn_scales(&points, 2, 9.0);
+        assert!((s[5] - 1.0).abs() < 1e-12, "interior point: neighbours at 1 and 1, got {}", s[5]);
+        assert!((s[0] - 2.5f64.sqrt()).abs() < 1e-12, "end point: neighbours at 1 and 2, got {}", s[0]);
+        assert_eq!(knn_scales(&points[..1], 2, 9.0), vec![9.0]);
+    }
+}

@@ -1,0 +1,13 @@
+//! The method: the model (hash-grid density field + Gaussians), its initialisation from the
+//! views and the prior, the working box, losses, densification, the optimiser, pose refinement
+//! and the training loop.
+
+pub mod densify;
+pub mod init;
+pub mod loss;
+pub mod model;
+pub mod ndarray_host;
+pub mod optim;
+pub mod pose;
+pub mod train;
+pub mod working_box;

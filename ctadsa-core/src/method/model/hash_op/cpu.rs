@@ -1,0 +1,184 @@
+//! CPU kernels of the hash encoding (host slices): forward, and backward to the positions and
+//! the tables. The table gradient is a scatter-add with one task per level (deterministic).
+
+use rayon::prelude::*;
+
+use crate::method::model::hash_grid::{HASH_P1, HASH_P2, HashGridConfig};
+
+/// Per-level constants.
+#[derive(Debug, Clone, Copy)]
+struct Level {
+    res: f32,
+    r1: i64,
+    dense: bool,
+    base: usize,
+}
+
+fn levels(c: &HashGridConfig) -> Vec<Level> {
+    let t = c.table_size();
+    (0..c.levels)
+        .map(|l| Level {
+            res: c.resolution(l) as f32,
+            r1: c.resolution(l) + 1,
+            dense: c.dense(l),
+            base: l * t as usize,
+        })
+        .collect()
+}
+
+/// Corner table rows and trilinear weights of a point at one level, and the weight derivatives
+/// with respect to the point (zero where the point was clamped).
+#[inline(always)]
+fn corners(lv: &Level, mask: i64, u: [f32; 3]) -> ([usize; 8], [f32; 8], [[f32; 3]; 8]) {
+    let mut inside = [1.0f32; 3];
+    let mut frac = [0.0f32; 3];
+    let mut cell = [0i64; 3];
+    for d in 0..3 {
+        let v = u[d];
+        let c = v.clamp(0.0, 1.0 - 1e-6);
+        if c != v {
+            inside[d] = 0.0;
+        }
+        let p = c * lv.res;
+        let f = p.floor();
+        cell[d] = f as i64;
+        frac[d] = p - f;
+    }
+    let mut rows = [0usize; 8];
+    let mut w = [0.0f32; 8];
+    let mut dw = [[0.0f32; 3]; 8];
+    for k in 0..8 {
+        let o = [k & 1, (k >> 1) & 1, (k >> 2) & 1];
+        let cc = [cell[0] + o[0] as i64, cell[1] + o[1] as i64, cell[2] + o[2] as i64];
+        let idx = if lv.dense {
+            cc[0] + cc[1] * lv.r1 + cc[2] * lv.r1 * lv.r1
+        } else {
+            (cc[0] ^ cc[1].wrapping_mul(HASH_P1) ^ cc[2].wrapping_mul(HASH_P2)) & mask
+        };
+        rows[k] = lv.base + idx as usize;
+        let a: [f32; 3] = std::array::from_fn(|d| if o[d] == 1 { frac[d] } else { 1.0 - frac[d] });
+        let s: [f32; 3] = std::array::from_fn(|d| if o[d] == 1 { 1.0 } else { -1.0 });
+        w[k] = a[0] * a[1] * a[2];
+        dw[k] = [
+            s[0] * a[1] * a[2] * lv.res * inside[0],
+            a[0] * s[1] * a[2] * lv.res * inside[1],
+            a[0] * a[1] * s[2] * lv.res * inside[2],
+        ];
+    }
+    (rows, w, dw)
+}
+
+/// Encodes `u` (`[N·3]`) with `tables` (`[F · L·T]`, feature-major): `[N · L·F]`.
+pub fn encode(c: &HashGridConfig, u: &[f32], tables: &[f32]) -> Vec<f32> {
+    let lv = levels(c);
+    let (l_n, f_n) = (c.levels, c.features);
+    let stride = c.levels * c.table_size() as usize;
+    let mask = c.table_size() - 1;
+    let n = u.len() / 3;
+    let mut out = vec![0.0f32; n * l_n * f_n];
+    out.par_chunks_mut(l_n * f_n).enumerate().for_each(|(i, o)| {
+        let p = [u[3 * i], u[3 * i + 1], u[3 * i + 2]];
+        for (l, level) in lv.iter().enumerate() {
+            let (rows, w, _) = corners(level, mask, p);
+            for f in 0..f_n {
+                let t = &tables[f * stride..(f + 1) * stride];
+                o[l * f_n + f] = (0..8).map(|k| w[k] * t[rows[k]]).sum();
+            }
+        }
+    });
+    out
+}
+
+/// Gradients of `Σ grad · encode(u, tables)` with respect to `u` (`[N·3]`) and `tables`.
+pub fn encode_backward(c: &HashGridConfig, u: &[f32], tables: &[f32], grad: &[f32]) -> (Vec<f32>, Vec<f32>) {
+    let lv = levels(c);
+    let (l_n, f_n) = (c.levels, c.features);
+    let stride = c.levels * c.table_size() as usize;
+    let mask = c.table_size() - 1;
+    let n = u.len() / 3;
+    let mut grad_u = vec![0.0f32; 3 * n];
+    grad_u.par_chunks_mut(3).enumerate().for_each(|(i, gu)| {
+        let p = [u[3 * i], u[3 * i + 1], u[3 * i + 2]];
+        for (l, level) in lv.iter().enumerate() {
+            let (rows, _, dw) = corners(level, mask, p);
+            for f in 0..f_n {
+                let g = grad[(i * l_n + l) * f_n + f];
+                if g == 0.0 {
+                    continue;
+                }
+                let t = &tables[f * stride..(f + 1) * stride];
+                for k in 0..8 {
+                    let v = g * t[rows[k]];
+                    for d in 0..3 {
+                        gu[d] += dw[k][d] * v;
+                    }
+                }
+            }
+        }
+    });
+    // The table gradient, one task per level: a level's rows (for every feature) have no other
+    // writer, so there are no atomics and each entry sums its points in index order — the
+    // same result for any thread count.
+    let t_size = c.table_size() as usize;
+    let mut grad_t = vec![0.0f32; tables.len()];
+    let mut by_level: Vec<Vec<&mut [f32]>> = (0..l_n).map(|_| Vec::with_capacity(f_n)).collect();
+    for (chunk, rows) in grad_t.chunks_mut(t_size).enumerate() {
+        by_level[chunk % l_n].push(rows); // chunk = f · L + l: pushed in feature order
+    }
+    by_level.into_par_iter().zip(lv.par_iter()).enumerate().for_each(|(l, (mut features, level))| {
+        for i in 0..n {
+            let p = [u[3 * i], u[3 * i + 1], u[3 * i + 2]];
+            let (rows, w, _) = corners(level, mask, p);
+            for (f, slice) in features.iter_mut().enumerate() {
+                let g = grad[(i * l_n + l) * f_n + f];
+                for k in 0..8 {
+                    slice[rows[k] - level.base] += w[k] * g;
+                }
+            }
+        }
+    });
+    (grad_u, grad_t)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{RngExt, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    /// The table gradient as one sequential scatter over points (the obvious loop).
+    fn table_grad_sequential(c: &HashGridConfig, u: &[f32], grad: &[f32]) -> Vec<f32> {
+        let lv = levels(c);
+        let (l_n, f_n) = (c.levels, c.features);
+        let stride = c.levels * c.table_size() as usize;
+        let mask = c.table_size() - 1;
+        let mut out = vec![0.0f32; f_n * stride];
+        for i in 0..u.len() / 3 {
+            let p = [u[3 * i], u[3 * i + 1], u[3 * i + 2]];
+            for (l, level) in lv.iter().enumerate() {
+                let (rows, w, _) = corners(level, mask, p);
+                for f in 0..f_n {
+                    let g = grad[(i * l_n + l) * f_n + f];
+                    for k in 0..8 {
+                        out[f * stride + rows[k]] += w[k] * g;
+                    }
+                }
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn level_parallel_table_gradient_equals_the_sequential_scatter_bit_for_bit() {
+        let c = HashGridConfig { levels: 6, features: 2, log2_table: 10, base_resolution: 4.0, growth: 1.8 };
+        assert!((0..c.levels).any(|l| c.dense(l)) && (0..c.levels).any(|l| !c.dense(l)));
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let n = 5000;
+        // Some points outside [0, 1]³ exercise the clamping.
+        let u: Vec<f32> = (0..3 * n).map(|_| rng.random_range(-0.05f32..1.05)).collect();
+        let tables: Vec<f32> = (0..c.features * c.levels * c.table_size() as usize).map(|_| rng.random()).collect();
+        let grad: Vec<f32> = (0..n * c.levels * c.features).map(|_| rng.random_range(-1.0f32..1.0)).collect();
+        let (_, parallel) = encode_backward(&c, &u, &tables, &grad);
+        assert_eq!(parallel, table_grad_sequential(&c, &u, &grad));
+    }
+}

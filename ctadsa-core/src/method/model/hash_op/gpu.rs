@@ -1,0 +1,206 @@
+//! CubeCL kernels of the hash encoding, one unit per (point, level), mirroring `cpu.rs`.
+//! The backward writes per-level position gradients (summed afterwards) and adds the table
+//! gradients with a compare-and-swap float add.
+
+use burn::backend::ops::FloatTensorOps;
+use burn::backend::{FloatDType, TensorMetadata};
+use burn::tensor::{DType, Shape, TensorData};
+use burn_cubecl::cubecl::prelude::*;
+use burn_cubecl::kernel::into_contiguous;
+use burn_cubecl::tensor::CubeTensor;
+use burn_cubecl::{CubeBackend, cubecl};
+
+use ctadsa_render::gpu::math::atomic_add_f32;
+
+use crate::method::model::hash_grid::{HASH_P1, HASH_P2, HashGridConfig};
+
+/// `meta` per level: `[resolution, r + 1, dense (0/1), base row]`.
+#[cube]
+fn corner(u: &Tensor<f32>, meta: &Tensor<f32>, i: usize, l: usize, k: u32, mask: u32) -> (u32, f32, f32, f32, f32) {
+    let res = meta[4 * l];
+    let r1 = u32::cast_from(meta[4 * l + 1]);
+    let dense = meta[4 * l + 2];
+    let base = u32::cast_from(meta[4 * l + 3]);
+    let ox = k & 1u32;
+    let oy = (k >> 1u32) & 1u32;
+    let oz = (k >> 2u32) & 1u32;
+    let ux = u[3 * i];
+    let uy = u[3 * i + 1];
+    let uz = u[3 * i + 2];
+    let cxf = f32::clamp(ux, 0.0, 0.999999);
+    let cyf = f32::clamp(uy, 0.0, 0.999999);
+    let czf = f32::clamp(uz, 0.0, 0.999999);
+    let in_x = select(cxf == ux, 1.0f32, 0.0f32);
+    let in_y = select(cyf == uy, 1.0f32, 0.0f32);
+    let in_z = select(czf == uz, 1.0f32, 0.0f32);
+    let px = cxf * res;
+    let py = cyf * res;
+    let pz = czf * res;
+    let fx = f32::floor(px);
+    let fy = f32::floor(py);
+    let fz = f32::floor(pz);
+    let cx = u32::cast_from(fx) + ox;
+    let cy = u32::cast_from(fy) + oy;
+    let cz = u32::cast_from(fz) + oz;
+    let mut idx = (cx ^ (cy * (HASH_P1 as u32)) ^ (cz * (HASH_P2 as u32))) & mask;
+    if dense > 0.5 {
+        idx = cx + cy * r1 + cz * r1 * r1;
+    }
+    let ax = select(ox == 1u32, px - fx, 1.0 - (px - fx));
+    let ay = select(oy == 1u32, py - fy, 1.0 - (py - fy));
+    let az = select(oz == 1u32, pz - fz, 1.0 - (pz - fz));
+    let sx = select(ox == 1u32, 1.0f32, -1.0f32);
+    let sy = select(oy == 1u32, 1.0f32, -1.0f32);
+    let sz = select(oz == 1u32, 1.0f32, -1.0f32);
+    (base + idx, ax * ay * az, sx * ay * az * res * in_x, ax * sy * az * res * in_y, ax * ay * sz * res * in_z)
+}
+
+#[cube(launch)]
+fn hash_forward_kernel(
+    u: &Tensor<f32>,
+    tables: &Tensor<f32>,
+    meta: &Tensor<f32>,
+    out: &mut Tensor<f32>,
+    n: u32,
+    levels: u32,
+    features: u32,
+    stride: u32,
+    mask: u32,
+) {
+    let id = ABSOLUTE_POS;
+    if id >= (n * levels) as usize {
+        terminate!();
+    }
+    let i = id / (levels as usize);
+    let l = id % (levels as usize);
+    for f in 0..features {
+        let mut acc = 0.0f32;
+        for k in 0..8u32 {
+            let (row, w, _a, _b, _c) = corner(u, meta, i, l, k, mask);
+            acc += w * tables[(f * stride + row) as usize];
+        }
+        out[(i * (levels as usize) + l) * (features as usize) + f as usize] = acc;
+    }
+}
+
+#[cube(launch)]
+#[allow(clippy::too_many_arguments)]
+fn hash_backward_kernel(
+    u: &Tensor<f32>,
+    tables: &Tensor<f32>,
+    meta: &Tensor<f32>,
+    grad: &Tensor<f32>,
+    grad_u_levels: &mut Tensor<f32>,
+    grad_tables: &mut Tensor<Atomic<u32>>,
+    n: u32,
+    levels: u32,
+    features: u32,
+    stride: u32,
+    mask: u32,
+) {
+    let id = ABSOLUTE_POS;
+    if id >= (n * levels) as usize {
+        terminate!();
+    }
+    let i = id / (levels as usize);
+    let l = id % (levels as usize);
+    let mut gx = 0.0f32;
+    let mut gy = 0.0f32;
+    let mut gz = 0.0f32;
+    for f in 0..features {
+        let g = grad[(i * (levels as usize) + l) * (features as usize) + f as usize];
+        for k in 0..8u32 {
+            let (row, w, dx, dy, dz) = corner(u, meta, i, l, k, mask);
+            let t = tables[(f * stride + row) as usize];
+            gx += dx * g * t;
+            gy += dy * g * t;
+            gz += dz * g * t;
+            atomic_add_f32(&mut grad_tables[(f * stride + row) as usize], w * g);
+        }
+    }
+    grad_u_levels[3 * id] = gx;
+    grad_u_levels[3 * id + 1] = gy;
+    grad_u_levels[3 * id + 2] = gz;
+}
+
+fn prepare(t: CubeTensor) -> CubeTensor {
+    let t = if t.dtype() == DType::F32 { t } else { CubeBackend::float_cast(t, FloatDType::F32) };
+    into_contiguous(t)
+}
+
+fn meta(c: &HashGridConfig, like: &CubeTensor) -> CubeTensor {
+    let t = c.table_size();
+    let data: Vec<f32> = (0..c.levels)
+        .flat_map(|l| {
+            [c.resolution(l) as f32, (c.resolution(l) + 1) as f32, c.dense(l) as u8 as f32, (l as i64 * t) as f32]
+        })
+        .collect();
+    CubeBackend::float_from_data(TensorData::new(data, [c.levels, 4]), &like.device)
+}
+
+fn dims(c: &HashGridConfig, n: usize, like: &CubeTensor) -> (CubeCount, CubeDim) {
+    let dim = CubeDim::new_1d(64);
+    (cubecl::calculate_cube_count_elemwise(&like.client, n * c.levels, dim), dim)
+}
+
+/// Forward on the GPU: `[N, L·F]`.
+pub fn encode(u: CubeTensor, tables: CubeTensor, c: &HashGridConfig) -> CubeTensor {
+    let (u, tables) = (prepare(u), prepare(tables));
+    let n = u.shape()[0];
+    let out = CubeBackend::float_zeros(Shape::from(vec![n, c.output_dim()]), &u.device, FloatDType::F32);
+    if n == 0 {
+        return out;
+    }
+    let meta = meta(c, &u);
+    let (count, dim) = dims(c, n, &u);
+    hash_forward_kernel::launch(
+        &u.client,
+        count,
+        dim,
+        u.clone().into_tensor_arg(),
+        tables.into_tensor_arg(),
+        meta.into_tensor_arg(),
+        out.clone().into_tensor_arg(),
+        n as u32,
+        c.levels as u32,
+        c.features as u32,
+        (c.levels as i64 * c.table_size()) as u32,
+        (c.table_size() - 1) as u32,
+    );
+    out
+}
+
+/// Backward on the GPU: `(∂L/∂u [N, 3], ∂L/∂tables [F, L·T])`.
+pub fn encode_backward(
+    u: CubeTensor,
+    tables: CubeTensor,
+    grad: CubeTensor,
+    c: &HashGridConfig,
+) -> (CubeTensor, CubeTensor) {
+    let (u, tables, grad) = (prepare(u), prepare(tables), prepare(grad));
+    let n = u.shape()[0];
+    let grad_tables = CubeBackend::float_zeros(tables.shape(), &u.device, FloatDType::F32);
+    let per_level = CubeBackend::float_zeros(Shape::from(vec![n, c.levels, 3]), &u.device, FloatDType::F32);
+    if n > 0 {
+        let meta = meta(c, &u);
+        let (count, dim) = dims(c, n, &u);
+        hash_backward_kernel::launch(
+            &u.client,
+            count,
+            dim,
+            u.clone().into_tensor_arg(),
+            tables.into_tensor_arg(),
+            meta.into_tensor_arg(),
+            grad.into_tensor_arg(),
+            per_level.clone().into_tensor_arg(),
+            grad_tables.clone().into_tensor_arg(),
+            n as u32,
+            c.levels as u32,
+            c.features as u32,
+            (c.levels as i64 * c.table_size()) as u32,
+            (c.table_size() - 1) as u32,
+        );
+    }
+    let grad_u = CubeBackend::float_reshape(CubeBackend::float_sum_dim(per_level, 1), Shape::from(vec![n, 3]));
+    (grad_u, grad_tables)
+}

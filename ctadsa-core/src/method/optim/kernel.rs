@@ -1,0 +1,191 @@
+//! The fused Adam update as a burn backend op: one multi-threaded pass on NdArray, burn's own
+//! tensor expressions on CubeCL (where the passes run on the GPU).
+
+#![allow(deprecated)] // burn-ndarray is deprecated in burn 0.22 in favour of burn-flex.
+
+use burn::backend::{
+    Autodiff, AutodiffBackend, Backend, ExtensionType, NdArray, Scalar, TensorMetadata, backend_extension,
+    tensor::FloatTensor,
+};
+use rayon::prelude::*;
+
+use burn::backend::ndarray::NdArrayTensor;
+use ndarray::{ArcArray, IxDyn};
+
+use crate::method::ndarray_host::{host, with_host};
+
+/// Scalars of one Adam step of one parameter.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AdamCoefficients {
+    pub beta_1: f32,
+    pub beta_2: f32,
+    pub epsilon: f32,
+    /// Coupled L2 penalty.
+    pub weight_decay: Option<f32>,
+    pub lr: f32,
+    /// The step number, from 1.
+    pub time: i32,
+}
+
+impl AdamCoefficients {
+    /// burn's `√(1 − β₂ᵗ)` and `√(1 − β₂ᵗ) / (1 − β₁ᵗ)`, in f32 as burn computes them.
+    fn bias_corrections(&self) -> (f32, f32) {
+        let bc2_sqrt = (1.0 - self.beta_2.powi(self.time)).sqrt();
+        (bc2_sqrt, bc2_sqrt / (1.0 - self.beta_1.powi(self.time)))
+    }
+}
+
+/// The updated parameter and moments.
+#[derive(ExtensionType)]
+pub struct AdamUpdate<B: Backend> {
+    pub param: FloatTensor<B>,
+    pub moment_1: FloatTensor<B>,
+    pub moment_2: FloatTensor<B>,
+}
+
+/// Backend operation of the fused Adam step.
+#[backend_extension(Autodiff, Cube: cfg(feature = "wgpu"), NdArray)]
+pub trait FusedAdamBackend: Backend {
+    /// One Adam step of `param` with `grad` and moments `moment_1`, `moment_2` (all one shape).
+    fn adam_update(
+        param: FloatTensor<Self>,
+        grad: FloatTensor<Self>,
+        moment_1: FloatTensor<Self>,
+        moment_2: FloatTensor<Self>,
+        c: AdamCoefficients,
+    ) -> AdamUpdate<Self>;
+}
+
+/// Elements per parallel task.
+const CHUNK: usize = 1 << 15;
+
+/// The fused loop, in place on host slices (`param`, `moment_1`, `moment_2` updated). The
+/// expression order is burn's, so results agree with burn's Adam to the last bit.
+pub fn adam_in_place(p: &mut [f32], g: &[f32], m: &mut [f32], v: &mut [f32], c: AdamCoefficients) {
+    assert!(g.len() == p.len() && m.len() == p.len() && v.len() == p.len(), "Adam operands differ in length");
+    let (bc2_sqrt, combined) = c.bias_corrections();
+    let eps = c.epsilon * bc2_sqrt;
+    let (f1, f2) = (1.0 - c.beta_1, 1.0 - c.beta_2);
+    p.par_chunks_mut(CHUNK)
+        .zip(g.par_chunks(CHUNK))
+        .zip(m.par_chunks_mut(CHUNK))
+        .zip(v.par_chunks_mut(CHUNK))
+        .for_each(|(((p, g), m), v)| {
+            for k in 0..p.len() {
+                let gk = match c.weight_decay {
+                    Some(l) => p[k] * l + g[k],
+                    None => g[k],
+                };
+                let mk = m[k] * c.beta_1 + gk * f1;
+                let vk = v[k] * c.beta_2 + gk * gk * f2;
+                let step = mk * combined / (vk.sqrt() + eps);
+                p[k] -= step * c.lr;
+                m[k] = mk;
+                v[k] = vk;
+            }
+        });
+}
+
+/// The values of an NdArray tensor as an owned contiguous f32 array: the tensor's own buffer
+/// when it is uniquely owned f32 (the usual case for parameters and moments after backward), a
+/// copy otherwise.
+fn owned_f32(t: FloatTensor<NdArray>) -> ArcArray<f32, IxDyn> {
+    let mut array = match t {
+        NdArrayTensor::F32(storage) => storage.into_owned(),
+        other => {
+            let shape = other.shape();
+            ArcArray::from_shape_vec(IxDyn(&shape), host::<NdArray>(other)).expect("shape matches the values")
+        }
+    };
+    if array.as_slice_mut().is_none() {
+        array = array.as_standard_layout().to_owned().into_shared();
+    }
+    array
+}
+
+impl FusedAdamBackend for NdArray {
+    fn adam_update(
+        param: FloatTensor<Self>,
+        grad: FloatTensor<Self>,
+        moment_1: FloatTensor<Self>,
+        moment_2: FloatTensor<Self>,
+        c: AdamCoefficients,
+    ) -> AdamUpdate<Self> {
+        let (mut p, mut m, mut v) = (owned_f32(param), owned_f32(moment_1), owned_f32(moment_2));
+        with_host(&grad, |g| {
+            let (ps, ms, vs) = (p.as_slice_mut(), m.as_slice_mut(), v.as_slice_mut());
+            adam_in_place(
+                ps.expect("standard layout"),
+                g,
+                ms.expect("standard layout"),
+                vs.expect("standard layout"),
+                c,
+            )
+        });
+        let tensor = |a: ArcArray<f32, IxDyn>| NdArrayTensor::F32(a.into());
+        AdamUpdate { param: tensor(p), moment_1: tensor(m), moment_2: tensor(v) }
+    }
+}
+
+/// burn's Adam expressions on any backend's primitives (the GPU path).
+#[cfg(feature = "wgpu")]
+fn adam_tensor_ops<B: Backend>(
+    param: FloatTensor<B>,
+    grad: FloatTensor<B>,
+    moment_1: FloatTensor<B>,
+    moment_2: FloatTensor<B>,
+    c: AdamCoefficients,
+) -> AdamUpdate<B> {
+    let s = |v: f32| Scalar::Float(v as f64);
+    let grad = match c.weight_decay {
+        Some(l) => B::float_add(B::float_mul_scalar(param.clone(), s(l)), grad),
+        None => grad,
+    };
+    let m =
+        B::float_add(B::float_mul_scalar(moment_1, s(c.beta_1)), B::float_mul_scalar(grad.clone(), s(1.0 - c.beta_1)));
+    let g2 = B::float_mul(grad.clone(), grad);
+    let v = B::float_add(B::float_mul_scalar(moment_2, s(c.beta_2)), B::float_mul_scalar(g2, s(1.0 - c.beta_2)));
+    let (bc2_sqrt, combined) = c.bias_corrections();
+    let denom = B::float_add_scalar(B::float_sqrt(v.clone()), s(c.epsilon * bc2_sqrt));
+    let step = B::float_div(B::float_mul_scalar(m.clone(), s(combined)), denom);
+    let param = B::float_sub(param, B::float_mul_scalar(step, s(c.lr)));
+    AdamUpdate { param, moment_1: m, moment_2: v }
+}
+
+#[cfg(feature = "wgpu")]
+impl FusedAdamBackend for burn_cubecl::CubeBackend {
+    fn adam_update(
+        param: FloatTensor<Self>,
+        grad: FloatTensor<Self>,
+        moment_1: FloatTensor<Self>,
+        moment_2: FloatTensor<Self>,
+        c: AdamCoefficients,
+    ) -> AdamUpdate<Self> {
+        adam_tensor_ops::<Self>(param, grad, moment_1, moment_2, c)
+    }
+}
+
+impl<B: Backend + FusedAdamBackend, C: burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy>
+    FusedAdamBackend for Autodiff<B, C>
+{
+    fn adam_update(
+        param: FloatTensor<Self>,
+        grad: FloatTensor<Self>,
+        moment_1: FloatTensor<Self>,
+        moment_2: FloatTensor<Self>,
+        c: AdamCoefficients,
+    ) -> AdamUpdate<Self> {
+        let out = B::adam_update(
+            param.into_primitive(),
+            grad.into_primitive(),
+            moment_1.into_primitive(),
+            moment_2.into_primitive(),
+            c,
+        );
+        AdamUpdate {
+            param: Self::from_inner(out.param),
+            moment_1: Self::from_inner(out.moment_1),
+            moment_2: Self::from_inner(out.moment_2),
+        }
+    }
+}

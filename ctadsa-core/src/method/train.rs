@@ -1,0 +1,696 @@
+//! The optimisation loop: render the model into the DSA views, compute the losses, take an Adam
+//! step with per-group exponentially decaying learning rates, densify, checkpoint and resume.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use burn::lr_scheduler::constant::ConstantLr;
+use burn::lr_scheduler::module_lr_scheduler::{ModuleLearningRate, ModuleLrScheduler};
+use burn::module::{Module, ParamGroup};
+use burn::optim::decay::WeightDecayConfig;
+use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
+use burn::tensor::{Device, Int, Tensor, TensorData};
+use ctadsa_render::{ConeBeamView, RenderSettings, ViewSet, render_with_stats};
+use glam::DVec3;
+use rand::seq::SliceRandom;
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+
+use crate::config::{AdamImpl, Config, WorkingBoxSource};
+use crate::data::case::Case;
+use crate::data::case::images::{Image, bin_image};
+use crate::data::mesh::TriMesh;
+use crate::data::mesh::sample::sample_surface;
+use crate::data::projector::correction::PoseCorrection;
+use crate::data::volume::BoxMm;
+use crate::error::{CoreError, Result, read_file, to_json, write_file};
+use crate::method::densify::{self, DensifyStats};
+use crate::method::init::initialise;
+use crate::method::loss::{LossTargets, PriorAnchor};
+use crate::method::model::{GaussianInit, GaussianModel, ScaleBounds, host_vec};
+use crate::method::optim::FusedAdam;
+use crate::method::pose::ViewPoses;
+use crate::method::working_box::working_box_from_inputs;
+
+/// Seconds spent per stage in one step.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct StageTimes {
+    pub field: f64,
+    pub render: f64,
+    pub losses: f64,
+    pub backward: f64,
+    pub optimizer: f64,
+    pub densify: f64,
+}
+
+/// One step's numbers.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct StepLog {
+    /// Iterations done after this step.
+    pub iteration: usize,
+    pub loss: f64,
+    pub l1: f64,
+    pub ssim: f64,
+    pub fn_loss: f64,
+    pub pa_loss: f64,
+    pub gaussians: usize,
+    pub times: StageTimes,
+}
+
+/// What a checkpoint stores besides the model and optimizer.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+struct CheckpointState {
+    iteration: usize,
+    gaussians: usize,
+    n1: usize,
+    n2: usize,
+    history: Vec<StepLog>,
+    /// The working box of the run (absent in checkpoints of older versions).
+    #[serde(default)]
+    working_box: Option<BoxMm>,
+    /// The settings that shape the trajectory ([`training_settings`]); a resume with other
+    /// settings is refused (absent in checkpoints of older versions).
+    #[serde(default)]
+    training_settings: Option<String>,
+}
+
+/// The configuration less what may change on resume (`[output]`, `run.iterations`,
+/// `run.checkpoint_every`), as TOML.
+fn training_settings(cfg: &Config) -> String {
+    let mut c = cfg.clone();
+    c.output = Default::default();
+    c.run.iterations = 0;
+    c.run.checkpoint_every = 0;
+    c.to_toml()
+}
+
+/// `section.key` paths whose values differ between two TOML documents.
+fn toml_differences(a: &str, b: &str) -> Vec<String> {
+    fn flatten(prefix: &str, v: &toml::Value, out: &mut std::collections::BTreeMap<String, String>) {
+        match v {
+            toml::Value::Table(t) => {
+                for (k, v) in t {
+                    let key = if prefix.is_empty() { k.clone() } else { format!("{prefix}.{k}") };
+                    flatten(&key, v, out);
+                }
+            }
+            other => {
+                out.insert(prefix.to_string(), other.to_string());
+            }
+        }
+    }
+    let parse = |s: &str| {
+        let mut out = std::collections::BTreeMap::new();
+        if let Ok(v) = toml::from_str::<toml::Table>(s) {
+            flatten("", &toml::Value::Table(v), &mut out);
+        }
+        out
+    };
+    let (a, b) = (parse(a), parse(b));
+    let keys: std::collections::BTreeSet<&String> = a.keys().chain(b.keys()).collect();
+    keys.into_iter().filter(|k| a.get(*k) != b.get(*k)).cloned().collect()
+}
+
+/// The case's images and views after the run's view selection and binning.
+pub fn prepare_views(case: &Case, cfg: &Config) -> Result<(ViewSet, Vec<Image>)> {
+    let case = if cfg.run.views.is_empty() { case.clone() } else { case.select_views(&cfg.run.views)? };
+    let b = cfg.run.image_binning.max(1);
+    let (w, h) = case.views.image_size();
+    if b > w.min(h) {
+        return Err(CoreError::invalid(format!(
+            "config `run.image_binning` = {b} is larger than the {w} × {h} px detector of {}",
+            case.dir.display()
+        )));
+    }
+    let views: Vec<ConeBeamView> =
+        case.views.views().iter().map(|v| v.binned(b)).collect::<std::result::Result<_, _>>()?;
+    let images: Vec<Image> = case.images.iter().map(|img| bin_image(img, b)).collect();
+    Ok((ViewSet::new(views)?, images))
+}
+
+/// Density that makes the initial renders carry the images' total intensity: the detector
+/// integral of a blob is its mass over depth² (normalised image coordinates).
+pub fn estimate_initial_density(views: &ViewSet, images: &[Image], init: &GaussianInit, bounds: ScaleBounds) -> f64 {
+    let mut masses = Vec::new();
+    for (v, img) in views.views().iter().zip(images) {
+        let [fx, fy] = v.intrinsics().focal_px;
+        let depth = v.source_mm().length();
+        let sum: f64 = img.data.iter().map(|&x| x.max(0.0) as f64).sum();
+        masses.push(sum / (fx * fy) * depth * depth);
+    }
+    let target_mass = masses.iter().sum::<f64>() / masses.len().max(1) as f64;
+    let unit_mass: f64 = init
+        .raw_scales
+        .chunks_exact(3)
+        .map(|r| {
+            let s: f64 = r
+                .iter()
+                .map(|&x| (bounds.max_mm - bounds.min_mm) as f64 / (1.0 + (-x as f64).exp()) + bounds.min_mm as f64)
+                .product();
+            (2.0 * std::f64::consts::PI).powf(1.5) * s
+        })
+        .sum();
+    if unit_mass > 0.0 && target_mass > 0.0 { target_mass / unit_mass } else { 1.0 }
+}
+
+/// The run's working box (`run.working_box`).
+pub fn run_working_box(
+    case: &Case,
+    cfg: &Config,
+    views: &ViewSet,
+    images: &[Image],
+    prior: Option<&TriMesh>,
+) -> Result<BoxMm> {
+    match cfg.run.working_box {
+        WorkingBoxSource::Case => Ok(case.file.volume.bounds()),
+        WorkingBoxSource::Inputs => working_box_from_inputs(views.views(), images, prior, cfg.init.mask_threshold),
+    }
+}
+
+/// A training run in memory.
+pub struct Trainer {
+    pub cfg: Config,
+    pub device: Device,
+    pub views: ViewSet,
+    pub images: Vec<Image>,
+    targets: LossTargets,
+    anchor: Option<PriorAnchor>,
+    model: Option<GaussianModel>,
+    /// Adam of the Gaussians' parameters (densification edits its state).
+    optim: ModuleOptimizer,
+    /// Adam of the opacity field (never edited: its 2 × 16.8 M moments at paper scale stay put).
+    field_optim: ModuleOptimizer,
+    pub stats: DensifyStats,
+    /// Iterations done.
+    pub iteration: usize,
+    pub history: Vec<StepLog>,
+    pub working_box: BoxMm,
+    pub voxel_mm: f64,
+    pub n1: usize,
+    pub n2: usize,
+    pub settings: RenderSettings,
+    /// Per-view pose corrections and their optimizer (`[pose] enabled`).
+    poses: Option<(ViewPoses, ModuleOptimizer)>,
+}
+
+/// The Adam of the Gaussians and the Adam of the field (coupled L2 weight decay on the field).
+fn new_optimizers(cfg: &Config) -> (ModuleOptimizer, ModuleOptimizer) {
+    let eps = cfg.optim.epsilon as f32;
+    let decay = (cfg.optim.field_weight_decay > 0.0).then_some(cfg.optim.field_weight_decay as f32);
+    match cfg.optim.adam {
+        AdamImpl::Fused => (
+            ModuleOptimizer::from(FusedAdam::new(eps)),
+            ModuleOptimizer::from(FusedAdam::new(eps).with_weight_decay(decay)),
+        ),
+        AdamImpl::Burn => (
+            AdamConfig::new().with_epsilon(eps).init(),
+            AdamConfig::new().with_epsilon(eps).with_weight_decay(decay.map(WeightDecayConfig::new)).init(),
+        ),
+    }
+}
+
+/// `init · (final / init)^(t / T)` (linear when one end is 0).
+pub fn decayed(range: [f64; 2], t: usize, total: usize) -> f64 {
+    let f = (t as f64 / total.max(1) as f64).clamp(0.0, 1.0);
+    let [a, b] = range;
+    if a > 0.0 && b > 0.0 { a * (b / a).powf(f) } else { a + (b - a) * f }
+}
+
+impl Trainer {
+    /// Initialises a run from a case.
+    pub fn new(case: &Case, cfg: Config, device: Device) -> Result<Self> {
+        cfg.validate()?;
+        let (views, images) = prepare_views(case, &cfg)?;
+        let prior = case.prior_mesh()?;
+        let working_box = run_working_box(case, &cfg, &views, &images, prior.as_ref())?;
+        let voxel_mm = case.file.volume.voxel_mm;
+        let bounds = ScaleBounds::from_voxel(voxel_mm, cfg.model.scale_min_voxels, cfg.model.scale_max_voxels);
+        let init = initialise(
+            &cfg.init,
+            views.views(),
+            &images,
+            prior.as_ref(),
+            &working_box,
+            voxel_mm,
+            bounds,
+            cfg.run.seed,
+        )?;
+        let rho0 = if cfg.model.initial_density > 0.0 {
+            cfg.model.initial_density
+        } else {
+            estimate_initial_density(&views, &images, &init.gaussians, bounds)
+        };
+        let size = working_box.size_mm();
+        let field = GaussianModel::new_field(
+            &cfg.field,
+            working_box.min_mm.map(|v| v as f32),
+            size.map(|v| v as f32),
+            rho0 as f32,
+            cfg.run.seed ^ 0xF1E1D,
+            &device,
+        );
+        let model = GaussianModel::new(&init.gaussians, field, bounds, &device);
+        Self::assemble(cfg, device, views, images, prior.as_ref(), model, working_box, voxel_mm, init.n1, init.n2)
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn assemble(
+        cfg: Config,
+        device: Device,
+        views: ViewSet,
+        images: Vec<Image>,
+        prior: Option<&TriMesh>,
+        model: GaussianModel,
+        working_box: BoxMm,
+        voxel_mm: f64,
+        n1: usize,
+        n2: usize,
+    ) -> Result<Self> {
+        let targets = LossTargets::new(&images, cfg.loss.fn_tau, &device);
+        let anchor = prior.and_then(|p| {
+            let n = ((p.area_mm2() / (0.05 * 0.05)) as usize).clamp(20_000, 400_000);
+            PriorAnchor::new(&sample_surface(p, n, cfg.run.seed ^ 0xA11C), cfg.loss.pa_radius_mm, cfg.loss.pa_k)
+        });
+        let n = model.len();
+        let settings = RenderSettings { k_sigma: cfg.model.k_sigma };
+        let poses = cfg.pose.enabled.then(|| {
+            let fixed: &[usize] = if cfg.pose.fix_first_view { &[0] } else { &[] };
+            (ViewPoses::new(views.len(), fixed, &device), AdamConfig::new().with_epsilon(1e-12).init())
+        });
+        let (gaussian_optim, field_optim) = new_optimizers(&cfg);
+        Ok(Self {
+            poses,
+            optim: gaussian_optim,
+            field_optim,
+            cfg,
+            device,
+            views,
+            images,
+            targets,
+            anchor,
+            model: Some(model),
+            stats: DensifyStats::new(n),
+            iteration: 0,
+            history: Vec::new(),
+            working_box,
+            voxel_mm,
+            n1,
+            n2,
+            settings,
+        })
+    }
+
+    /// The current model.
+    pub fn model(&self) -> &GaussianModel {
+        self.model.as_ref().expect("model present between steps")
+    }
+
+    /// Learning rates of the Gaussians' groups and of the field.
+    fn learning_rates(&self) -> (ModuleLearningRate, ModuleLearningRate) {
+        let (t, total) = (self.iteration, self.cfg.run.iterations);
+        let o = &self.cfg.optim;
+        let field = ModuleLrScheduler::new(ConstantLr::new(decayed(o.lr_field, t, total))).step();
+        let gaussians = ModuleLrScheduler::new(ConstantLr::new(decayed(o.lr_means, t, total)))
+            .with_group(ParamGroup::from_path("means"), ConstantLr::new(decayed(o.lr_means, t, total)))
+            .with_group(ParamGroup::from_path("raw_scales"), ConstantLr::new(decayed(o.lr_scales, t, total)))
+            .with_group(ParamGroup::from_path("rotations"), ConstantLr::new(decayed(o.lr_rotations, t, total)))
+            .step();
+        (gaussians, field)
+    }
+
+    fn step_views(&self) -> Vec<usize> {
+        let v = self.views.len();
+        let k = self.cfg.run.views_per_step;
+        if k == 0 || k >= v {
+            return (0..v).collect();
+        }
+        let mut rng = ChaCha8Rng::seed_from_u64(self.cfg.run.seed ^ (self.iteration as u64).wrapping_mul(0x2545_F491));
+        let mut all: Vec<usize> = (0..v).collect();
+        all.shuffle(&mut rng);
+        all.truncate(k);
+        all.sort_unstable();
+        all
+    }
+
+    fn densify_active(&self) -> bool {
+        let d = &self.cfg.densify;
+        d.enabled && self.iteration < d.until
+    }
+
+    /// One optimisation step.
+    pub fn step(&mut self) -> Result<StepLog> {
+        let cfg = self.cfg.clone();
+        let t = self.iteration;
+        let (lr, field_lr) = self.learning_rates();
+        let idx = self.step_views();
+        let (views, targets) = if idx.len() == self.views.len() {
+            (self.views.clone(), self.targets.clone())
+        } else {
+            let it = Tensor::<1, Int>::from_data(
+                TensorData::new(idx.iter().map(|&i| i as i64).collect::<Vec<_>>(), [idx.len()]),
+                &self.device,
+            );
+            (self.views.select(&idx)?, self.targets.select(it))
+        };
+        // Borrowed until the optimizer step, so that no error path can lose the model.
+        let model = self.model.as_ref().expect("model present between steps");
+        let n = model.len();
+        let mut times = StageTimes::default();
+        let clock = Instant::now();
+        let densities = model.field.forward(model.means.val());
+        let gaussians = ctadsa_render::Gaussians {
+            means: model.means.val(),
+            scales: model.scales(),
+            rotations: model.rotations.val(),
+            densities,
+        };
+        times.field = clock.elapsed().as_secs_f64();
+        let clock = Instant::now();
+        let probe = Tensor::<2>::zeros([n, 2], &self.device).require_grad();
+        let image = match &self.poses {
+            None => render_with_stats(&gaussians, probe.clone(), &views, &self.settings)?,
+            Some((poses, _)) => {
+                let mut per_view = Vec::with_capacity(idx.len());
+                for (k, &v) in idx.iter().enumerate() {
+                    let seen = poses.apply(&gaussians, v);
+                    per_view.push(render_with_stats(&seen, probe.clone(), &views.select(&[k])?, &self.settings)?);
+                }
+                Tensor::cat(per_view, 0)
+            }
+        };
+        times.render = clock.elapsed().as_secs_f64();
+        let clock = Instant::now();
+        let (render_loss, l1, ssim) = targets.render_loss(image.clone(), cfg.loss.lambda_dssim);
+        let mut loss = render_loss;
+        let mut fn_value = 0.0;
+        if t >= cfg.loss.fn_start && cfg.loss.fn_weight > 0.0 {
+            let f = targets.fn_loss(image, cfg.loss.fn_margin);
+            fn_value = f.clone().into_scalar::<f32>() as f64;
+            loss = loss + f.mul_scalar(cfg.loss.fn_weight);
+        }
+        let mut pa_value = 0.0;
+        if let (true, Some(anchor)) = (t >= cfg.loss.pa_start && cfg.loss.pa_weight > 0.0, &self.anchor) {
+            let mut rng = ChaCha8Rng::seed_from_u64(cfg.run.seed ^ 0x9A ^ (t as u64).wrapping_mul(0x9E37_79B9));
+            let m = if cfg.loss.pa_samples == 0 { n } else { cfg.loss.pa_samples.min(n) };
+            let sample: Vec<i64> =
+                if m == n { (0..n as i64).collect() } else { (0..m).map(|_| rng.random_range(0..n as i64)).collect() };
+            let sel = Tensor::<1, Int>::from_data(TensorData::new(sample.clone(), [m]), &self.device);
+            let chosen = model.means.val().select(0, sel);
+            let host: Vec<f32> = host_vec(chosen.clone());
+            let (keep, tgt) = anchor.targets(&host);
+            if !keep.is_empty() {
+                let k = keep.len();
+                let ki = Tensor::<1, Int>::from_data(
+                    TensorData::new(keep.iter().map(|&i| i as i64).collect::<Vec<_>>(), [k]),
+                    &self.device,
+                );
+                let target = Tensor::<2>::from_data(TensorData::new(tgt, [k, 3]), &self.device);
+                let pa = (chosen.select(0, ki) - target).powi_scalar(2).sum_dim(1).mean();
+                pa_value = pa.clone().into_scalar::<f32>() as f64;
+                loss = loss + pa.mul_scalar(cfg.loss.pa_weight);
+            }
+        }
+        let loss_value = loss.clone().into_scalar::<f32>() as f64;
+        if !loss_value.is_finite() {
+            return Err(CoreError::invalid(format!("loss became {loss_value} at iteration {t}")));
+        }
+        times.losses = clock.elapsed().as_secs_f64();
+        let clock = Instant::now();
+        let mut grads = loss.backward();
+        if let Some((poses, mut optim)) = self.poses.take() {
+            let pose_grads = GradientsParams::from_module(&mut grads, &poses);
+            let poses = if t >= cfg.pose.start {
+                let p = &cfg.pose;
+                let lr = ModuleLrScheduler::new(ConstantLr::new(decayed(p.lr_rotation_rad, t, cfg.run.iterations)))
+                    .with_group(
+                        ParamGroup::from_path("translations_mm"),
+                        ConstantLr::new(decayed(p.lr_translation_mm, t, cfg.run.iterations)),
+                    )
+                    .step();
+                optim.step(lr, poses, pose_grads)
+            } else {
+                poses
+            };
+            self.poses = Some((poses, optim));
+        }
+        if self.densify_active()
+            && let Some(g) = probe.grad(&grads)
+        {
+            let host: Vec<f32> = host_vec(g);
+            self.stats.add(&host);
+        }
+        let field_grads = GradientsParams::from_module(&mut grads, &model.field);
+        let gaussian_ids = [model.means.id, model.raw_scales.id, model.rotations.id];
+        let grads = GradientsParams::from_params(&mut grads, model, &gaussian_ids);
+        times.backward = clock.elapsed().as_secs_f64();
+        let clock = Instant::now();
+        let mut model = self.model.take().expect("model present between steps");
+        model = self.optim.step(lr, model, grads);
+        model.field = self.field_optim.step(field_lr, model.field, field_grads);
+        times.optimizer = clock.elapsed().as_secs_f64();
+        self.model = Some(model);
+        self.iteration += 1;
+        let d = &cfg.densify;
+        if d.enabled && self.iteration > d.from && self.iteration <= d.until && self.iteration.is_multiple_of(d.every) {
+            let clock = Instant::now();
+            self.densify()?;
+            times.densify = clock.elapsed().as_secs_f64();
+        }
+        let log = StepLog {
+            iteration: self.iteration,
+            loss: loss_value,
+            l1: l1.into_scalar::<f32>() as f64,
+            ssim: ssim.into_scalar::<f32>() as f64,
+            fn_loss: fn_value,
+            pa_loss: pa_value,
+            gaussians: self.model().len(),
+            times,
+        };
+        self.history.push(log);
+        Ok(log)
+    }
+
+    /// Densification now (clone, split, prune), keeping parameters and Adam moments consistent.
+    pub fn densify(&mut self) -> Result<densify::DensifyPlan> {
+        let model = self.model();
+        let params = model.to_init();
+        let densities: Vec<f32> = host_vec(model.valid().densities());
+        let plan = densify::plan(
+            &params,
+            &densities,
+            &self.stats,
+            &self.cfg.densify,
+            model.bounds,
+            &self.working_box,
+            self.voxel_mm,
+            self.iteration,
+            self.cfg.run.seed,
+        );
+        // Clones share the tensors; on an error the current model and optimizer stay as they are.
+        let (model, optim) = densify::apply(model.clone(), self.optim.clone(), &plan, &self.device)?;
+        self.stats = DensifyStats::new(model.len());
+        self.model = Some(model);
+        self.optim = optim;
+        Ok(plan)
+    }
+
+    /// Writes a checkpoint folder (model, optimizer, state); returns its path.
+    /// The folder is written under a temporary name and renamed when complete, so a kill while
+    /// saving leaves the previous checkpoints as they were.
+    pub fn save_checkpoint(&self, dir: &Path) -> Result<PathBuf> {
+        let done = dir.join(format!("ckpt-{:07}", self.iteration));
+        let ck = dir.join(format!(".ckpt-{:07}.partial-{}", self.iteration, std::process::id()));
+        if ck.exists() {
+            std::fs::remove_dir_all(&ck).map_err(|e| CoreError::io(&ck, e))?;
+        }
+        std::fs::create_dir_all(&ck).map_err(|e| CoreError::io(&ck, e))?;
+        self.model()
+            .clone()
+            .save_file(ck.join("model.bpk"))
+            .map_err(|e| CoreError::format(&ck.join("model.bpk"), format!("cannot save model: {e:?}")))?;
+        for (optim, name) in [(&self.optim, "optim.bpk"), (&self.field_optim, "optim-field.bpk")] {
+            optim
+                .save(ck.join(name))
+                .map_err(|e| CoreError::format(&ck.join(name), format!("cannot save optimizer: {e:?}")))?;
+        }
+        if let Some((poses, optim)) = &self.poses {
+            let (mp, op) = (ck.join("poses.bpk"), ck.join("poses-optim.bpk"));
+            poses.clone().save_file(&mp).map_err(|e| CoreError::format(&mp, format!("cannot save poses: {e:?}")))?;
+            optim.save(&op).map_err(|e| CoreError::format(&op, format!("cannot save pose optimizer: {e:?}")))?;
+        }
+        let stats: Vec<u8> = self.stats.sum.iter().chain(&self.stats.count).flat_map(|v| v.to_le_bytes()).collect();
+        write_file(&ck.join("stats.bin"), &stats)?;
+        let state = CheckpointState {
+            iteration: self.iteration,
+            gaussians: self.model().len(),
+            n1: self.n1,
+            n2: self.n2,
+            history: self.history.clone(),
+            working_box: Some(self.working_box),
+            training_settings: Some(training_settings(&self.cfg)),
+        };
+        let state_path = ck.join("state.json");
+        write_file(&state_path, to_json(&state, &state_path)?.as_bytes())?;
+        if done.exists() {
+            std::fs::remove_dir_all(&done).map_err(|e| CoreError::io(&done, e))?;
+        }
+        std::fs::rename(&ck, &done).map_err(|e| CoreError::io(&done, e))?;
+        // Folders a killed process left half-written are never read; remove them.
+        for stale in std::fs::read_dir(dir).map_err(|e| CoreError::io(dir, e))?.flatten() {
+            let name = stale.file_name();
+            if name.to_str().is_some_and(|n| n.starts_with(".ckpt-") && n.contains(".partial-")) {
+                let _ = std::fs::remove_dir_all(stale.path());
+            }
+        }
+        Ok(done)
+    }
+
+    /// Restores a run from a checkpoint folder written by [`Trainer::save_checkpoint`], with the
+    /// same case and configuration.
+    pub fn resume(case: &Case, cfg: Config, device: Device, checkpoint: &Path) -> Result<Self> {
+        cfg.validate()?;
+        let state_path = checkpoint.join("state.json");
+        let state: CheckpointState = serde_json::from_slice(&read_file(&state_path)?)
+            .map_err(|e| CoreError::format(&state_path, format!("invalid checkpoint state: {e}")))?;
+        if let Some(saved) = &state.training_settings {
+            let differ = toml_differences(saved, &training_settings(&cfg));
+            if !differ.is_empty() {
+                return Err(CoreError::format(
+                    &state_path,
+                    format!(
+                        "this checkpoint belongs to a run with other settings ({}); resume with the run's \
+                         config.toml, or start a new run",
+                        differ.join(", ")
+                    ),
+                ));
+            }
+        }
+        let (views, images) = prepare_views(case, &cfg)?;
+        let prior = case.prior_mesh()?;
+        let working_box = match state.working_box {
+            Some(b) => b,
+            None => run_working_box(case, &cfg, &views, &images, prior.as_ref())?,
+        };
+        let voxel_mm = case.file.volume.voxel_mm;
+        let bounds = ScaleBounds::from_voxel(voxel_mm, cfg.model.scale_min_voxels, cfg.model.scale_max_voxels);
+        let n = state.gaussians;
+        let model_path = checkpoint.join("model.bpk");
+        let model_bytes = std::fs::metadata(&model_path).map_err(|e| CoreError::io(&model_path, e))?.len();
+        // Ten f32 per Gaussian (mean, raw scale, rotation) must be in the model file.
+        if n == 0 || n > crate::config::MAX_GAUSSIANS || model_bytes < 40 * n as u64 {
+            return Err(CoreError::format(
+                &state_path,
+                format!("`gaussians` = {n} does not fit the checkpoint's model.bpk ({model_bytes} bytes)"),
+            ));
+        }
+        let skeleton_init =
+            GaussianInit { means: vec![0.0; 3 * n], raw_scales: vec![0.0; 3 * n], rotations: vec![0.0; 4 * n] };
+        let size = working_box.size_mm();
+        let field = GaussianModel::new_field(
+            &cfg.field,
+            working_box.min_mm.map(|v| v as f32),
+            size.map(|v| v as f32),
+            1.0,
+            cfg.run.seed ^ 0xF1E1D,
+            &device,
+        );
+        let skeleton = GaussianModel::new(&skeleton_init, field, bounds, &device);
+        let model = skeleton
+            .try_load_file(&model_path)
+            .map_err(|e| CoreError::format(&model_path, format!("cannot load model (same config?): {e:?}")))?;
+        let mut t = Self::assemble(
+            cfg,
+            device,
+            views,
+            images,
+            prior.as_ref(),
+            model,
+            working_box,
+            voxel_mm,
+            state.n1,
+            state.n2,
+        )?;
+        // Checkpoints of versions with one optimizer hold both states in optim.bpk.
+        let optim_path = checkpoint.join("optim.bpk");
+        let field_path = Some(checkpoint.join("optim-field.bpk")).filter(|p| p.exists()).unwrap_or(optim_path.clone());
+        let (gaussian_optim, field_optim) = new_optimizers(&t.cfg);
+        let load = |optim: ModuleOptimizer, path: &Path| {
+            optim.load(path).map_err(|e| CoreError::format(path, format!("cannot load optimizer state: {e:?}")))
+        };
+        t.optim = load(gaussian_optim, &optim_path)?;
+        t.field_optim = load(field_optim, &field_path)?;
+        if let Some((poses, optim)) = t.poses.take() {
+            let (mp, op) = (checkpoint.join("poses.bpk"), checkpoint.join("poses-optim.bpk"));
+            let poses = poses
+                .try_load_file(&mp)
+                .map_err(|e| CoreError::format(&mp, format!("cannot load view poses (was [pose] enabled?): {e:?}")))?;
+            let optim =
+                optim.load(&op).map_err(|e| CoreError::format(&op, format!("cannot load pose optimizer: {e:?}")))?;
+            t.poses = Some((poses, optim));
+        }
+        let stats = read_file(&checkpoint.join("stats.bin"))?;
+        let vals: Vec<f32> = stats.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
+        if vals.len() == 2 * n {
+            t.stats = DensifyStats { sum: vals[..n].to_vec(), count: vals[n..].to_vec() };
+        }
+        t.iteration = state.iteration;
+        t.history = state.history;
+        Ok(t)
+    }
+
+    /// The complete checkpoint folders under `dir` (`ckpt-` + iteration), newest first.
+    pub fn checkpoints(dir: &Path) -> Vec<PathBuf> {
+        let Ok(entries) = std::fs::read_dir(dir) else { return Vec::new() };
+        let mut cks: Vec<(usize, PathBuf)> = entries
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter_map(|p| {
+                let n: usize = p.file_name()?.to_str()?.strip_prefix("ckpt-")?.parse().ok()?;
+                p.join("state.json").exists().then_some((n, p))
+            })
+            .collect();
+        cks.sort();
+        cks.into_iter().rev().map(|(_, p)| p).collect()
+    }
+
+    /// Host copy of the Gaussians: `(means, scales, rotations, densities)` row-major.
+    pub fn host_gaussians(&self) -> (Vec<f32>, Vec<f32>, Vec<f32>, Vec<f32>) {
+        let m = self.model().valid();
+        let v2 = |t: Tensor<2>| host_vec(t);
+        let d = host_vec(m.densities());
+        (v2(m.means.val()), v2(m.scales()), v2(m.rotations.val()), d)
+    }
+
+    /// Final renders of all views `[V][H·W]`.
+    pub fn render_all(&self) -> Result<Vec<Vec<f32>>> {
+        let m = self.model().valid();
+        let gaussians = m.gaussians();
+        let img = match &self.poses {
+            None => ctadsa_render::render(&gaussians, &self.views, &self.settings)?,
+            Some((poses, _)) => {
+                let poses = poses.valid();
+                let mut per_view = Vec::with_capacity(self.views.len());
+                for v in 0..self.views.len() {
+                    let seen = poses.apply(&gaussians, v);
+                    per_view.push(ctadsa_render::render(&seen, &self.views.select(&[v])?, &self.settings)?);
+                }
+                Tensor::cat(per_view, 0)
+            }
+        };
+        let (w, h) = self.views.image_size();
+        let flat: Vec<f32> = host_vec(img);
+        Ok(flat.chunks((w * h) as usize).map(<[f32]>::to_vec).collect())
+    }
+
+    /// The learned pose corrections of the run's views (`None` when pose refinement is off).
+    pub fn pose_corrections(&self) -> Option<Vec<PoseCorrection>> {
+        self.poses.as_ref().map(|(p, _)| p.corrections())
+    }
+
+    /// Centre of mass of the Gaussians (mm), for quick diagnostics.
+    pub fn centroid(&self) -> DVec3 {
+        let (m, ..) = self.host_gaussians();
+        let n = (m.len() / 3).max(1) as f64;
+        m.chunks_exact(3).fold(DVec3::ZERO, |acc, c| acc + DVec3::new(c[0] as f64, c[1] as f64, c[2] as f64)) / n
+    }
+}

@@ -1,0 +1,302 @@
+//! Everything a completion run writes: density volume (NIfTI), completed mesh, Gaussians (PLY),
+//! renders beside targets with their difference (PNG), loss curve (PNG + CSV), the config used,
+//! and metrics (JSON) when the case has ground truth.
+
+use std::path::Path;
+
+use burn::module::Module;
+use glam::DVec3;
+use serde::Serialize;
+
+use crate::data::case::images::write_rgb_or_grey;
+use crate::data::case::{Case, ViewGeometry};
+use crate::data::mesh::TriMesh;
+use crate::data::mesh::io::{write_mesh, write_point_ply};
+use crate::data::mesh::marching::extract_isosurface;
+use crate::data::mesh::render_png::{Coloured, OrbitView, standard_views, write_mesh_png};
+use crate::data::mesh::split::split_by_distance;
+use crate::data::projector::correction::{PoseCorrection, PoseError, corrected_view, pose_errors};
+use crate::data::volume::nifti_io::write_nifti;
+use crate::data::volume::{Grid, Volume};
+use crate::error::{Result, to_json, write_file};
+use crate::eval::metrics::RegionScores;
+use crate::eval::score::{CaseTruth, EvalOptions};
+use crate::eval::surface_metrics::Coverage;
+use crate::method::model::host_vec;
+use crate::method::train::Trainer;
+use crate::output::extraction::{LevelScore, best_level, density_scale, join_prior, prior_solid, score_levels};
+use crate::output::plot::{PALETTE, Series, line_plot};
+use ctadsa_render::ConeBeamView;
+
+/// Numbers of a finished run.
+#[derive(Debug, Clone, Serialize)]
+pub struct RunSummary {
+    /// The case folder the run used (as given).
+    pub case_dir: String,
+    pub iterations: usize,
+    pub gaussians: usize,
+    pub n1: usize,
+    pub n2: usize,
+    /// Iso-level of the extracted surface (density units) and the triangle count.
+    pub mc_level: f64,
+    /// With `output.level_from_views`: every candidate level and its silhouette Dice.
+    pub level_scores: Vec<LevelScore>,
+    pub mesh_triangles: usize,
+    /// Connected components dropped as floaters (`output.min_island_mm2`).
+    pub islands_dropped: usize,
+    pub final_loss: f64,
+    /// Scores of the completed surface (exact distances, `docs/METRICS.md`) when the case has
+    /// ground truth.
+    pub metrics: Option<RegionScores>,
+    /// Missing-vessel recall and false surface of the completed surface.
+    pub coverage: Option<Coverage>,
+    /// The completed surface in the paper's convention (vertex point sets).
+    pub paper_metrics: Option<RegionScores>,
+    /// The same scores for the prior alone (what the run started from), for comparison.
+    pub prior_metrics: Option<RegionScores>,
+    pub prior_coverage: Option<Coverage>,
+    /// With pose refinement on a case whose true view corrections are known: how far each
+    /// refined view is from the truth.
+    pub pose_errors: Option<Vec<PoseError>>,
+}
+
+/// The density field on a grid over the working box.
+pub fn density_volume(trainer: &Trainer) -> Result<Volume<f32>> {
+    let voxel = if trainer.cfg.output.voxel_mm > 0.0 { trainer.cfg.output.voxel_mm } else { trainer.voxel_mm };
+    let grid = Grid::covering(&trainer.working_box, voxel)?;
+    let m = trainer.model().valid();
+    let vol = ctadsa_render::voxelize(&m.gaussians(), &grid.to_render_grid()?, &trainer.settings)?;
+    Ok(Volume { grid, index_to_world: grid.index_to_world(), data: host_vec(vol) })
+}
+
+/// The iso-level: relative to the 99.9th percentile of the positive densities, or absolute.
+pub fn mc_level(volume: &Volume<f32>, level: f64, relative: bool) -> f64 {
+    if relative { level * density_scale(volume) } else { level }
+}
+
+/// `[target | render | |difference|]` of every view, one PNG per view, magnified by an integer
+/// factor (nearest neighbour) so that each panel is at least 256 pixels wide.
+fn write_renders(dir: &Path, case: &Case, trainer: &Trainer, renders: &[Vec<f32>]) -> Result<()> {
+    let names: Vec<String> = if trainer.cfg.run.views.is_empty() {
+        case.file.views.iter().map(|v| v.name.clone()).collect()
+    } else {
+        trainer.cfg.run.views.iter().map(|&i| case.file.views[i].name.clone()).collect()
+    };
+    for ((name, target), render) in names.iter().zip(&trainer.images).zip(renders) {
+        let (w, h) = (target.width as usize, target.height as usize);
+        let max = target.max().max(render.iter().copied().fold(0.0, f32::max)).max(1e-12);
+        let mut rgb = vec![255u8; 3 * w * 3 * h];
+        let stride = 3 * w;
+        for r in 0..h {
+            for c in 0..w {
+                let t = target.data[r * w + c] / max;
+                let p = render[r * w + c] / max;
+                let d = p - t;
+                let grey = |v: f32| (255.0 * (1.0 - v.clamp(0.0, 1.0))).round() as u8;
+                let px = |k: usize, col: [u8; 3], rgb: &mut Vec<u8>| {
+                    let i = 3 * (r * stride + k * w + c);
+                    rgb[i..i + 3].copy_from_slice(&col);
+                };
+                px(0, [grey(t); 3], &mut rgb);
+                px(1, [grey(p); 3], &mut rgb);
+                // Difference: red where the render is too bright, blue where too dark.
+                let m = (255.0 * (1.0 - (d.abs() * 2.0).clamp(0.0, 1.0))).round() as u8;
+                px(2, if d > 0.0 { [255, m, m] } else { [m, m, 255] }, &mut rgb);
+            }
+        }
+        let f = (256 / w.max(1)).max(1);
+        let (big_w, big_h) = (3 * w * f, h * f);
+        let mut big = vec![0u8; 3 * big_w * big_h];
+        for y in 0..big_h {
+            for x in 0..big_w {
+                let (i, j) = (3 * (y * big_w + x), 3 * ((y / f) * stride + x / f));
+                big[i..i + 3].copy_from_slice(&rgb[j..j + 3]);
+            }
+        }
+        write_rgb_or_grey(&dir.join(format!("renders/{name}.png")), big_w as u32, big_h as u32, big, 3)?;
+    }
+    Ok(())
+}
+
+/// With pose refinement: writes `poses.json` (the corrections and the refined geometry of every
+/// view of the run, as world-to-camera matrices at the case's detector) and, when the case knows
+/// the true corrections, returns how far the refined views are from them.
+fn write_poses(dir: &Path, case: &Case, trainer: &Trainer, prior: Option<&TriMesh>) -> Result<Option<Vec<PoseError>>> {
+    let Some(learned) = trainer.pose_corrections() else {
+        return Ok(None);
+    };
+    let indices: Vec<usize> =
+        if trainer.cfg.run.views.is_empty() { (0..case.views.len()).collect() } else { trainer.cfg.run.views.clone() };
+    let nominal: Vec<(usize, ConeBeamView)> = indices.iter().map(|&i| (i, case.views.views()[i])).collect();
+    let mut entries = Vec::new();
+    for ((i, view), c) in nominal.iter().zip(&learned) {
+        let refined = corrected_view(view, c)?;
+        let intr = refined.intrinsics();
+        let m = refined.world_to_camera().transpose().to_cols_array_2d();
+        entries.push(serde_json::json!({
+            "view": i,
+            "name": case.file.views[*i].name,
+            "rotation_deg": [c[0].to_degrees(), c[1].to_degrees(), c[2].to_degrees()],
+            "translation_mm": [c[3], c[4], c[5]],
+            "geometry": ViewGeometry::Matrix {
+                world_to_camera: m,
+                focal_px: intr.focal_px,
+                principal_px: intr.principal_px,
+                detector_px: [refined.width(), refined.height()],
+            },
+        }));
+    }
+    let poses_path = dir.join("poses.json");
+    let text = to_json(
+        &serde_json::json!({
+            "convention": "view v sees world point x where the nominal view sees R(ω) x + t (rotation about the isocentre, then translation); geometry = the refined view",
+            "views": entries,
+        }),
+        &poses_path,
+    )?;
+    write_file(&poses_path, text.as_bytes())?;
+    let truth = case.file.ground_truth.as_ref().and_then(|g| g.view_corrections.as_ref());
+    let Some(truth) = truth else {
+        return Ok(None);
+    };
+    let truth: Vec<PoseCorrection> = indices.iter().map(|&i| truth.get(i).copied().unwrap_or([0.0; 6])).collect();
+    let points: Vec<DVec3> = match prior {
+        Some(p) if !p.vertices.is_empty() => {
+            p.vertices.iter().step_by((p.vertices.len() / 2000).max(1)).copied().collect()
+        }
+        _ => vec![DVec3::ZERO],
+    };
+    Ok(Some(pose_errors(&nominal, &learned, &truth, &points)?))
+}
+
+/// Writes the outputs of a run into `dir`.
+pub fn write_outputs(dir: &Path, case: &Case, trainer: &Trainer) -> Result<RunSummary> {
+    let cfg = &trainer.cfg;
+    write_file(&dir.join("config.toml"), cfg.to_toml().as_bytes())?;
+    // Gaussians.
+    let (means, scales, rotations, densities) = trainer.host_gaussians();
+    let rows: Vec<Vec<f32>> = (0..densities.len())
+        .map(|i| {
+            let mut r = means[3 * i..3 * i + 3].to_vec();
+            r.extend_from_slice(&scales[3 * i..3 * i + 3]);
+            r.extend_from_slice(&rotations[4 * i..4 * i + 4]);
+            r.push(densities[i]);
+            r
+        })
+        .collect();
+    write_point_ply(
+        &dir.join("gaussians.ply"),
+        &["x", "y", "z", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3", "density"],
+        &rows,
+        "ctadsa Gaussians: centres and scales in mm, quaternion w x y z, density per mm",
+    )?;
+    // Volume and mesh.
+    let volume = density_volume(trainer)?;
+    write_nifti(&dir.join("density.nii.gz"), &volume, "ctadsa density (per mm)")?;
+    let prior = case.prior_mesh()?;
+    let solid = match (&prior, cfg.output.keep_prior) {
+        (Some(p), true) => Some(prior_solid(p, &volume)),
+        _ => None,
+    };
+    let level_scores = if cfg.output.level_from_views {
+        score_levels(&volume, trainer.views.views(), &trainer.images, cfg.init.mask_threshold, solid.as_ref())
+    } else {
+        Vec::new()
+    };
+    let level = match best_level(&level_scores) {
+        Some(best) => best.level,
+        None => mc_level(&volume, cfg.output.mc_level, cfg.output.mc_relative),
+    };
+    let raw_mesh = extract_isosurface(&volume, level as f32);
+    let (extracted, islands_dropped) = if cfg.output.min_island_mm2 > 0.0 {
+        let (kept, dropped) = raw_mesh.without_islands_below(cfg.output.min_island_mm2);
+        write_mesh(&dir.join(format!("mesh-raw.{}", cfg.output.mesh_format)), &raw_mesh)?;
+        (kept, dropped)
+    } else {
+        (raw_mesh, 0)
+    };
+    let mesh = match (&prior, &solid) {
+        (Some(p), Some(s)) => {
+            write_mesh(&dir.join(format!("mesh-extracted.{}", cfg.output.mesh_format)), &extracted)?;
+            join_prior(&extracted, p, s, cfg.output.keep_prior_mm)
+        }
+        _ => extracted,
+    };
+    write_mesh(&dir.join(format!("mesh.{}", cfg.output.mesh_format)), &mesh)?;
+    // Renders.
+    let renders = trainer.render_all()?;
+    write_renders(dir, case, trainer, &renders)?;
+    // Loss curve.
+    let h = &trainer.history;
+    let mut csv = String::from("iteration,loss,l1,ssim,fn_loss,pa_loss,gaussians\n");
+    for s in h {
+        csv.push_str(&format!(
+            "{},{},{},{},{},{},{}\n",
+            s.iteration, s.loss, s.l1, s.ssim, s.fn_loss, s.pa_loss, s.gaussians
+        ));
+    }
+    write_file(&dir.join("loss.csv"), csv.as_bytes())?;
+    // Log scale: a term is drawn where it is positive; terms that never are (switched off) are left out.
+    let pick = |f: fn(&crate::method::train::StepLog) -> f64| {
+        h.iter().map(|s| (s.iteration as f64, f(s))).filter(|p| p.1 > 0.0).collect::<Vec<_>>()
+    };
+    let series: Vec<Series> = [
+        Series { name: "TOTAL".into(), points: pick(|s| s.loss), rgb: PALETTE[5] },
+        Series { name: "L1".into(), points: pick(|s| s.l1), rgb: PALETTE[0] },
+        Series { name: "1-SSIM".into(), points: pick(|s| 1.0 - s.ssim), rgb: PALETTE[1] },
+        Series { name: "FN".into(), points: pick(|s| s.fn_loss), rgb: PALETTE[2] },
+        Series { name: "PA".into(), points: pick(|s| s.pa_loss), rgb: PALETTE[3] },
+    ]
+    .into_iter()
+    .filter(|s| !s.points.is_empty())
+    .collect();
+    line_plot(&dir.join("loss.png"), "TRAINING LOSS", "ITERATION", "LOSS (LOG)", &series, true)?;
+    // Pictures of the mesh: prior in red, the rest of the completed mesh in blue.
+    let mut parts = vec![Coloured { mesh: &mesh, rgb: [60, 120, 220] }];
+    if let Some(p) = &prior {
+        parts.push(Coloured { mesh: p, rgb: [210, 60, 50] });
+    }
+    write_mesh_png(&dir.join("mesh.png"), &parts, &standard_views(360))?;
+    // As the paper's Fig. 4: the completed surface, where the prior had vessels in red and the
+    // new vessels in blue, from four directions.
+    if let Some(p) = &prior {
+        let (old, new) = split_by_distance(&mesh, p, 1.0);
+        let mut views = standard_views(320);
+        views.push(OrbitView { azimuth_deg: 0.0, elevation_deg: 89.0, width: 320, height: 320 });
+        write_mesh_png(
+            &dir.join("mesh-completion.png"),
+            &[Coloured { mesh: &old, rgb: [210, 60, 50] }, Coloured { mesh: &new, rgb: [60, 120, 220] }],
+            &views,
+        )?;
+    }
+    // Metrics.
+    let options = EvalOptions { samples: cfg.output.metric_samples, ..EvalOptions::default() };
+    let truth = CaseTruth::load(case)?;
+    let scored = truth.as_ref().map(|t| t.evaluate(&mesh, &options));
+    let prior_scored = match (&truth, &prior) {
+        (Some(t), Some(p)) => Some(t.evaluate(p, &options)),
+        _ => None,
+    };
+    let pose_errors = write_poses(dir, case, trainer, prior.as_ref())?;
+    let summary = RunSummary {
+        case_dir: case.dir.display().to_string(),
+        iterations: trainer.iteration,
+        gaussians: densities.len(),
+        n1: trainer.n1,
+        n2: trainer.n2,
+        mc_level: level,
+        level_scores,
+        mesh_triangles: mesh.faces.len(),
+        islands_dropped,
+        final_loss: h.last().map_or(f64::NAN, |s| s.loss),
+        metrics: scored.as_ref().map(|r| r.scores),
+        coverage: scored.as_ref().map(|r| r.coverage),
+        paper_metrics: scored.as_ref().map(|r| r.paper),
+        prior_metrics: prior_scored.as_ref().map(|r| r.scores),
+        prior_coverage: prior_scored.as_ref().map(|r| r.coverage),
+        pose_errors,
+    };
+    let summary_path = dir.join("summary.json");
+    write_file(&summary_path, to_json(&summary, &summary_path)?.as_bytes())?;
+    Ok(summary)
+}

@@ -1,0 +1,7 @@
+//! Outputs of a run: the completed surface extracted from the trained density, the files a run
+//! writes, plots and the HTML report.
+
+pub mod export;
+pub mod extraction;
+pub mod plot;
+pub mod report;

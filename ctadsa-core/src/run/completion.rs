@@ -1,0 +1,149 @@
+//! One completion run in its output folder: start afresh, overwrite or resume (falling back to
+//! older checkpoints), train with periodic checkpoints, stop with a checkpoint when asked, then
+//! write the outputs and the report. The CLI and the tests drive runs through [`run_completion`];
+//! what they show of a run (a progress bar, log lines) comes through a [`Monitor`].
+
+use std::path::{Path, PathBuf};
+
+use burn::tensor::Device;
+
+use crate::config::Config;
+use crate::data::case::Case;
+use crate::error::{CoreError, Result};
+use crate::method::train::{StepLog, Trainer};
+use crate::output::export::{RunSummary, write_outputs};
+use crate::output::report::write_report;
+
+/// How a run starts in its output folder.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Start<'a> {
+    /// A new run; refused when the folder holds one.
+    Fresh,
+    /// A new run; an earlier run's checkpoints and summary in the folder are removed first.
+    Overwrite,
+    /// From `"latest"` (the newest usable checkpoint in the folder) or a checkpoint folder.
+    Resume(&'a str),
+}
+
+/// How a run ended.
+#[derive(Debug, Clone)]
+pub enum Outcome {
+    /// All iterations done; outputs written.
+    Finished(Box<RunSummary>),
+    /// Stopped on request ([`Monitor::should_stop`]) after saving this checkpoint.
+    Interrupted { checkpoint: PathBuf },
+}
+
+/// What a caller sees of a run. Every method has a default that does nothing.
+pub trait Monitor {
+    /// A line worth telling the user (which checkpoint is resumed, which one is unusable).
+    fn note(&mut self, _line: &str) {}
+    /// Training is about to start (or continue) at `trainer.iteration`.
+    fn started(&mut self, _trainer: &Trainer, _cfg: &Config) {}
+    /// One step is done.
+    fn stepped(&mut self, _trainer: &Trainer, _log: &StepLog) {}
+    /// Checked after every step: `true` saves a checkpoint and ends the run.
+    fn should_stop(&self) -> bool {
+        false
+    }
+}
+
+/// A monitor that shows nothing and never stops a run.
+pub struct Silent;
+
+impl Monitor for Silent {}
+
+/// Whether `out` holds (part of) a run: a summary or a checkpoint.
+pub fn holds_run(out: &Path) -> bool {
+    out.join("summary.json").exists() || !Trainer::checkpoints(&out.join("checkpoints")).is_empty()
+}
+
+fn remove(path: &Path) -> Result<()> {
+    let removed = if path.is_dir() {
+        std::fs::remove_dir_all(path)
+    } else if path.exists() {
+        std::fs::remove_file(path)
+    } else {
+        Ok(())
+    };
+    removed.map_err(|e| CoreError::io(path, e))
+}
+
+/// The trainer for `start`: `Resume("latest")` falls back to older checkpoints when the newest
+/// cannot be read (e.g. a file cut short by a kill), saying so through `monitor`.
+pub fn start_trainer(
+    case: &Case,
+    cfg: &Config,
+    device: Device,
+    out: &Path,
+    start: Start,
+    monitor: &mut dyn Monitor,
+) -> Result<Trainer> {
+    let ck_dir = out.join("checkpoints");
+    match start {
+        Start::Fresh if holds_run(out) => Err(CoreError::invalid(format!(
+            "{} already holds a run: pass --resume to continue it or --overwrite to start again",
+            out.display()
+        ))),
+        Start::Fresh => Trainer::new(case, cfg.clone(), device),
+        Start::Overwrite => {
+            remove(&out.join("summary.json"))?;
+            remove(&ck_dir)?;
+            Trainer::new(case, cfg.clone(), device)
+        }
+        Start::Resume("latest") => {
+            let mut first_error = None;
+            for ck in Trainer::checkpoints(&ck_dir) {
+                monitor.note(&format!("resuming from {}", ck.display()));
+                match Trainer::resume(case, cfg.clone(), device.clone(), &ck) {
+                    Ok(t) => return Ok(t),
+                    Err(e) => {
+                        monitor.note(&format!("warning: checkpoint {} is unusable: {e}", ck.display()));
+                        first_error.get_or_insert(e);
+                    }
+                }
+            }
+            Err(match first_error {
+                Some(e) => CoreError::invalid(format!("no usable checkpoint in {}: {e}", ck_dir.display())),
+                None => CoreError::invalid(format!("no checkpoint in {}", ck_dir.display())),
+            })
+        }
+        Start::Resume(path) => {
+            monitor.note(&format!("resuming from {path}"));
+            Trainer::resume(case, cfg.clone(), device, Path::new(path))
+        }
+    }
+}
+
+/// Runs the optimisation of `case` with `cfg` on `device` (an autodiff device) in `out`:
+/// checkpoints every `run.checkpoint_every` iterations and at the end, a checkpoint and
+/// [`Outcome::Interrupted`] when the monitor asks to stop, otherwise the outputs and the report.
+pub fn run_completion(
+    case: &Case,
+    cfg: Config,
+    device: Device,
+    out: &Path,
+    start: Start,
+    monitor: &mut dyn Monitor,
+) -> Result<Outcome> {
+    std::fs::create_dir_all(out).map_err(|e| CoreError::io(out, e))?;
+    let ck_dir = out.join("checkpoints");
+    let mut trainer = start_trainer(case, &cfg, device, out, start, monitor)?;
+    monitor.started(&trainer, &cfg);
+    while trainer.iteration < cfg.run.iterations {
+        let log = trainer.step()?;
+        monitor.stepped(&trainer, &log);
+        let every = cfg.run.checkpoint_every;
+        if every > 0 && trainer.iteration % every == 0 && trainer.iteration < cfg.run.iterations {
+            trainer.save_checkpoint(&ck_dir)?;
+        }
+        if monitor.should_stop() {
+            let checkpoint = trainer.save_checkpoint(&ck_dir)?;
+            return Ok(Outcome::Interrupted { checkpoint });
+        }
+    }
+    trainer.save_checkpoint(&ck_dir)?;
+    let summary = write_outputs(out, case, &trainer)?;
+    write_report(out)?;
+    Ok(Outcome::Finished(Box::new(summary)))
+}

@@ -1,0 +1,445 @@
+//! An experiment matrix: (case × prior × view subset × method) completion runs, each in its own
+//! cell folder. A cell is finished when its `cell.json` exists; running one cell writes only
+//! inside its folder, so cells can run in any order, in parallel or as the tasks of a SLURM job
+//! array, and [`Experiment::collect`] gathers whatever is finished into `results.csv`, a
+//! Markdown table in the paper's layout (mean ± std over cases) and Fig. 3-style plots.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use burn::tensor::Device;
+use serde::{Deserialize, Serialize};
+
+use crate::config::Config;
+use crate::data::case::{Case, PriorEntry};
+use crate::error::{CoreError, Result, check_file_name, read_file, to_json, write_file};
+use crate::eval::metrics::SurfaceScores;
+use crate::output::export::RunSummary;
+use crate::output::plot::{PALETTE, Series, line_plot};
+use crate::run::completion::{Monitor, Outcome, Start, run_completion};
+
+/// One method (row of the paper's tables): a config file and overrides.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Method {
+    pub name: String,
+    /// Config path, relative to the matrix file.
+    pub config: PathBuf,
+    #[serde(default)]
+    pub set: Vec<String>,
+}
+
+/// The matrix file (`configs/experiments/*.toml`).
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Matrix {
+    /// View subsets (indices into the case's views).
+    pub views: Vec<Vec<usize>>,
+    /// Prior folders under each case's `priors/` (empty: the case's own prior).
+    #[serde(default)]
+    pub priors: Vec<String>,
+    /// Overrides for every cell.
+    #[serde(default)]
+    pub set: Vec<String>,
+    pub methods: Vec<Method>,
+}
+
+/// The numbers of one finished cell (non-finite values stored as `null`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CellResult {
+    pub case: String,
+    pub method: String,
+    pub views: usize,
+    pub view_list: String,
+    pub prior: String,
+    pub prior_threshold_mm: Option<f64>,
+    pub seconds: f64,
+    pub gaussians: usize,
+    pub metrics: BTreeMap<String, Option<f64>>,
+}
+
+/// One run of the matrix.
+#[derive(Debug, Clone)]
+pub struct Cell {
+    pub case_dir: PathBuf,
+    pub case_name: String,
+    pub method: Method,
+    pub views: Vec<usize>,
+    pub prior: Option<String>,
+    /// `<out>/cells/<case>/<prior>/views-<list>/<method>`.
+    pub dir: PathBuf,
+}
+
+impl Cell {
+    /// One line naming the cell.
+    pub fn label(&self) -> String {
+        format!(
+            "{} / {} / views {:?} / {}",
+            self.case_name,
+            self.prior.as_deref().unwrap_or("case prior"),
+            self.views,
+            self.method.name
+        )
+    }
+
+    /// The cell's result when it has finished (a readable `cell.json`).
+    pub fn finished(&self) -> Option<CellResult> {
+        let bytes = std::fs::read(self.dir.join("cell.json")).ok()?;
+        serde_json::from_slice(&bytes).ok()
+    }
+}
+
+/// A matrix over cases, with its cells in a fixed order (case, prior, views, method), so that a
+/// cell's index names the same run on every machine.
+#[derive(Debug, Clone)]
+pub struct Experiment {
+    pub matrix: Matrix,
+    /// Folder of the matrix file (method configs are relative to it).
+    pub matrix_dir: PathBuf,
+    /// Overrides for every cell: the matrix's, then the caller's.
+    pub common: Vec<String>,
+    pub cells: Vec<Cell>,
+    pub out: PathBuf,
+}
+
+fn finite(v: f64) -> Option<f64> {
+    v.is_finite().then_some(v)
+}
+
+fn put(m: &mut BTreeMap<String, Option<f64>>, prefix: &str, s: Option<&SurfaceScores>) {
+    let s = s.copied();
+    m.insert(format!("{prefix}cd_mean_mm"), s.and_then(|s| finite(s.cd_mean_mm)));
+    m.insert(format!("{prefix}cd_sum_mm"), s.and_then(|s| finite(s.cd_sum_mm)));
+    m.insert(format!("{prefix}hd95_mm"), s.and_then(|s| finite(s.hd95_mm)));
+    m.insert(format!("{prefix}hd_mm"), s.and_then(|s| finite(s.hd_mm)));
+}
+
+/// `d1p50mm` → 1.5.
+fn threshold_of(tag: &str) -> Option<f64> {
+    tag.strip_prefix('d')?.strip_suffix("mm")?.replace('p', ".").parse().ok()
+}
+
+/// The case with another of its priors (and the matching missing-vessel surface).
+fn with_prior(case: &Case, tag: &str) -> Result<Case> {
+    let mut c = case.clone();
+    let prior = format!("priors/{tag}/prior.obj");
+    let missing = format!("priors/{tag}/missing.obj");
+    for p in [&prior, &missing] {
+        if !case.path(p).exists() {
+            return Err(CoreError::format(
+                &case.dir.join("case.json"),
+                format!("{p} does not exist (synthesise the case with this prior threshold)"),
+            ));
+        }
+    }
+    let threshold = threshold_of(tag);
+    c.file.prior = Some(PriorEntry { mesh: prior, description: format!("prior {tag}"), threshold_mm: threshold });
+    if let Some(gt) = c.file.ground_truth.as_mut() {
+        gt.missing_mesh = Some(missing);
+    }
+    Ok(c)
+}
+
+/// The metrics of a finished run as a cell's flat map.
+fn cell_metrics(summary: &RunSummary) -> BTreeMap<String, Option<f64>> {
+    let mut metrics = BTreeMap::new();
+    let m = summary.metrics.as_ref();
+    put(&mut metrics, "", m.map(|m| &m.overall));
+    put(&mut metrics, "roi_", m.and_then(|m| m.roi.as_ref()));
+    put(&mut metrics, "prior_", m.and_then(|m| m.prior.as_ref()));
+    if let Some(c) = &summary.coverage {
+        metrics.insert("missing_recall".into(), c.missing_recall.and_then(finite));
+        metrics.insert("missing_surface_within_1mm".into(), c.missing_surface_within_1mm.and_then(finite));
+        metrics.insert("false_surface".into(), finite(c.false_surface));
+    }
+    // The untouched prior mesh, scored the same way, for comparison.
+    let p = summary.prior_metrics.as_ref();
+    put(&mut metrics, "untouched_prior_", p.map(|m| &m.overall));
+    metrics
+}
+
+impl Experiment {
+    /// Reads and checks the matrix file (names usable as folder names, every method's config
+    /// valid with the overrides) and lays out its cells for `cases` under `out`.
+    pub fn load(matrix_path: &Path, cases: &[PathBuf], out: &Path, overrides: &[String]) -> Result<Self> {
+        let bytes = read_file(matrix_path)?;
+        let text = String::from_utf8(bytes).map_err(|_| CoreError::format(matrix_path, "not UTF-8 text"))?;
+        let matrix: Matrix =
+            toml::from_str(&text).map_err(|e| CoreError::format(matrix_path, format!("invalid matrix: {e}")))?;
+        let bad = |problem: String| CoreError::format(matrix_path, problem);
+        if matrix.views.is_empty() || matrix.methods.is_empty() {
+            return Err(bad("the matrix needs at least one view subset and one method".into()));
+        }
+        for m in &matrix.methods {
+            check_file_name(&m.name, "method name").map_err(bad)?;
+        }
+        for p in &matrix.priors {
+            check_file_name(p, "prior folder").map_err(bad)?;
+        }
+        let matrix_dir = matrix_path.parent().unwrap_or(Path::new(".")).to_path_buf();
+        let mut common = matrix.set.clone();
+        common.extend(overrides.iter().cloned());
+        for m in &matrix.methods {
+            Config::load(Some(&matrix_dir.join(&m.config)), &[common.clone(), m.set.clone()].concat())
+                .map_err(|e| bad(format!("method {}: {e}", m.name)))?;
+        }
+        let priors: Vec<Option<String>> =
+            if matrix.priors.is_empty() { vec![None] } else { matrix.priors.iter().cloned().map(Some).collect() };
+        let mut cells = Vec::new();
+        for case_dir in cases {
+            let case_name =
+                case_dir.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_else(|| "case".into());
+            check_file_name(&case_name, "case folder name").map_err(CoreError::invalid)?;
+            for prior in &priors {
+                for views in &matrix.views {
+                    for method in &matrix.methods {
+                        let tag = views.iter().map(|v| v.to_string()).collect::<Vec<_>>().join("-");
+                        let dir = out
+                            .join("cells")
+                            .join(&case_name)
+                            .join(prior.as_deref().unwrap_or("case"))
+                            .join(format!("views-{tag}"))
+                            .join(&method.name);
+                        cells.push(Cell {
+                            case_dir: case_dir.clone(),
+                            case_name: case_name.clone(),
+                            method: method.clone(),
+                            views: views.clone(),
+                            prior: prior.clone(),
+                            dir,
+                        });
+                    }
+                }
+            }
+        }
+        Ok(Self { matrix, matrix_dir, common, cells, out: out.to_path_buf() })
+    }
+
+    /// Runs cell `index` from scratch (an unfinished earlier attempt is overwritten) on `device`
+    /// (autodiff) and writes its `cell.json`. `None` when the monitor stopped it.
+    pub fn run_cell(&self, index: usize, device: Device, monitor: &mut dyn Monitor) -> Result<Option<CellResult>> {
+        let cell = self.cells.get(index).ok_or_else(|| {
+            CoreError::invalid(format!("cell {index} does not exist (the matrix has {} cells)", self.cells.len()))
+        })?;
+        let case = Case::load(&cell.case_dir)?;
+        let case = match &cell.prior {
+            Some(tag) => with_prior(&case, tag)?,
+            None => case,
+        };
+        let view_list = cell.views.iter().map(|v| v.to_string()).collect::<Vec<_>>().join(",");
+        let mut overrides = self.common.clone();
+        overrides.extend(cell.method.set.iter().cloned());
+        overrides.push(format!("run.views=[{view_list}]"));
+        let cfg = Config::load(Some(&self.matrix_dir.join(&cell.method.config)), &overrides)?;
+        let start = Instant::now();
+        let summary = match run_completion(&case, cfg, device, &cell.dir, Start::Overwrite, monitor)? {
+            Outcome::Finished(summary) => summary,
+            Outcome::Interrupted { .. } => return Ok(None),
+        };
+        let result = CellResult {
+            case: cell.case_name.clone(),
+            method: cell.method.name.clone(),
+            views: cell.views.len(),
+            view_list,
+            prior: cell.prior.clone().unwrap_or_else(|| "case".into()),
+            prior_threshold_mm: case.file.prior.as_ref().and_then(|p| p.threshold_mm),
+            seconds: start.elapsed().as_secs_f64(),
+            gaussians: summary.gaussians,
+            metrics: cell_metrics(&summary),
+        };
+        let path = cell.dir.join("cell.json");
+        write_file(&path, to_json(&result, &path)?.as_bytes())?;
+        Ok(Some(result))
+    }
+
+    /// The results of the finished cells, in cell order.
+    pub fn finished(&self) -> Vec<CellResult> {
+        self.cells.iter().filter_map(Cell::finished).collect()
+    }
+
+    /// Writes `results.csv`, `table.md` and (with several priors) the Fig. 3 plots from the
+    /// finished cells; returns the Markdown table.
+    pub fn collect(&self) -> Result<String> {
+        let mut results = self.finished();
+        results.sort_by(|a, b| (&a.case, &a.prior, a.views, &a.method).cmp(&(&b.case, &b.prior, b.views, &b.method)));
+        write_file(&self.out.join("results.csv"), results_csv(&results).as_bytes())?;
+        let md = results_table(&results, &self.matrix);
+        write_file(&self.out.join("table.md"), md.as_bytes())?;
+        self.write_fig3(&results)?;
+        Ok(md)
+    }
+
+    /// Fig. 3: ROI metrics against the prior threshold, one series per method and view count.
+    fn write_fig3(&self, results: &[CellResult]) -> Result<()> {
+        let priors = priors_of(results);
+        if priors.len() < 2 {
+            return Ok(());
+        }
+        for (key, label, file) in
+            [("roi_cd_sum_mm", "CD ROI (mm)", "fig3-cd-roi.png"), ("roi_hd95_mm", "HD95 ROI (mm)", "fig3-hd95-roi.png")]
+        {
+            let mut series = Vec::new();
+            for m in &self.matrix.methods {
+                for v in view_counts(&self.matrix) {
+                    let mut pts: Vec<(f64, f64)> = Vec::new();
+                    for p in &priors {
+                        let s: Vec<f64> = results
+                            .iter()
+                            .filter(|r| r.method == m.name && &r.prior == p && r.views == v)
+                            .filter_map(|r| r.metrics.get(key).copied().flatten())
+                            .collect();
+                        if let (Some(t), Some((mean, _))) = (threshold_of(p), mean_std(&s)) {
+                            pts.push((t, mean));
+                        }
+                    }
+                    pts.sort_by(|a, b| a.0.total_cmp(&b.0));
+                    let rgb = PALETTE[series.len() % PALETTE.len()];
+                    series.push(Series { name: format!("{} {}v", m.name, v), points: pts, rgb });
+                }
+            }
+            line_plot(&self.out.join(file), label, "prior threshold (mm)", label, &series, false)?;
+        }
+        Ok(())
+    }
+}
+
+fn mean_std(v: &[f64]) -> Option<(f64, f64)> {
+    if v.is_empty() {
+        return None;
+    }
+    let m = v.iter().sum::<f64>() / v.len() as f64;
+    let var = v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / v.len() as f64;
+    Some((m, var.sqrt()))
+}
+
+/// Mean ± std of a metric over the results; cells where it is undefined (e.g. no point in the
+/// ROI) are counted and shown.
+fn cell_text(rs: &[&CellResult], key: &str) -> String {
+    let vals: Vec<f64> = rs.iter().filter_map(|r| r.metrics.get(key).copied().flatten()).collect();
+    let missing = rs.len() - vals.len();
+    let core = match mean_std(&vals) {
+        Some((m, s)) => format!("{m:.2} ± {s:.2}"),
+        None => "—".into(),
+    };
+    if missing > 0 { format!("{core} ({missing}× ∞)") } else { core }
+}
+
+fn view_counts(matrix: &Matrix) -> Vec<usize> {
+    let mut v: Vec<usize> = matrix.views.iter().map(Vec::len).collect();
+    v.dedup();
+    v
+}
+
+fn priors_of(results: &[CellResult]) -> Vec<String> {
+    results.iter().map(|r| r.prior.clone()).collect::<BTreeSet<_>>().into_iter().collect()
+}
+
+/// One CSV row per cell (undefined metrics as `inf`).
+pub fn results_csv(results: &[CellResult]) -> String {
+    let keys: Vec<String> = results.first().map(|r| r.metrics.keys().cloned().collect()).unwrap_or_default();
+    let mut csv =
+        format!("case,method,views,view_list,prior,prior_threshold_mm,seconds,gaussians,{}\n", keys.join(","));
+    for r in results {
+        let vals: Vec<String> = keys
+            .iter()
+            .map(|k| r.metrics.get(k).copied().flatten().map_or("inf".into(), |v| format!("{v:.4}")))
+            .collect();
+        csv += &format!(
+            "{},{},{},\"{}\",{},{},{:.1},{},{}\n",
+            r.case,
+            r.method,
+            r.views,
+            r.view_list,
+            r.prior,
+            r.prior_threshold_mm.map_or(String::new(), |v| format!("{v}")),
+            r.seconds,
+            r.gaussians,
+            vals.join(",")
+        );
+    }
+    csv
+}
+
+/// Markdown: rows = method (× prior), columns = views × (CD_ROI, HD95_ROI, CD, HD95).
+pub fn results_table(results: &[CellResult], matrix: &Matrix) -> String {
+    let cases: BTreeSet<&str> = results.iter().map(|r| r.case.as_str()).collect();
+    let mut md = format!(
+        "Mean ± std over {} case(s). CD = sum of the two one-sided mean distances (the reference's \
+         convention), HD95 = 95th-percentile Hausdorff, in mm; ROI = the vessels missing from the prior.\n\n",
+        cases.len()
+    );
+    let counts = view_counts(matrix);
+    md += "| method | prior |";
+    for v in &counts {
+        md += &format!(" CD_ROI ({v} views) | HD95_ROI ({v} views) | CD ({v} views) | HD95 ({v} views) |");
+    }
+    md += "\n|---|---|";
+    for _ in &counts {
+        md += "---:|---:|---:|---:|";
+    }
+    md += "\n";
+    for m in &matrix.methods {
+        for p in &priors_of(results) {
+            let sel: Vec<&CellResult> = results.iter().filter(|r| r.method == m.name && &r.prior == p).collect();
+            if sel.is_empty() {
+                continue;
+            }
+            md += &format!("| {} | {} |", m.name, p);
+            for v in &counts {
+                let s: Vec<&CellResult> = sel.iter().copied().filter(|r| r.views == *v).collect();
+                for key in ["roi_cd_sum_mm", "roi_hd95_mm", "cd_sum_mm", "hd95_mm"] {
+                    md += &format!(" {} |", cell_text(&s, key));
+                }
+            }
+            md += "\n";
+        }
+    }
+    md
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn result(case: &str, method: &str, views: usize, cd_roi: Option<f64>) -> CellResult {
+        CellResult {
+            case: case.into(),
+            method: method.into(),
+            views,
+            view_list: "0,1".into(),
+            prior: "case".into(),
+            prior_threshold_mm: Some(1.0),
+            seconds: 1.0,
+            gaussians: 10,
+            metrics: BTreeMap::from([("roi_cd_sum_mm".to_string(), cd_roi)]),
+        }
+    }
+
+    #[test]
+    fn the_table_gives_mean_and_spread_over_cases_and_counts_undefined_cells() {
+        let matrix = Matrix {
+            views: vec![vec![0, 1]],
+            priors: vec![],
+            set: vec![],
+            methods: vec![Method { name: "full".into(), config: "x.toml".into(), set: vec![] }],
+        };
+        let rs = [result("a", "full", 2, Some(2.0)), result("b", "full", 2, Some(4.0)), result("c", "full", 2, None)];
+        let md = results_table(&rs, &matrix);
+        assert!(md.contains("| full | case | 3.00 ± 1.00 (1× ∞) |"), "{md}");
+        let csv = results_csv(&rs);
+        assert_eq!(csv.lines().count(), 4, "{csv}");
+        assert!(csv.lines().nth(3).unwrap().ends_with(",inf"), "{csv}");
+    }
+
+    #[test]
+    fn matrix_names_that_would_escape_the_output_folder_are_refused() {
+        let dir = std::env::temp_dir().join(format!("ctadsa-matrix-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("m.toml");
+        std::fs::write(&path, "views = [[0, 1]]\n[[methods]]\nname = \"../up\"\nconfig = \"c.toml\"\n").unwrap();
+        let err = Experiment::load(&path, &[], &dir.join("out"), &[]).unwrap_err().to_string();
+        assert!(err.contains("m.toml") && err.contains("method name"), "{err}");
+        std::fs::remove_dir_all(&dir).ok();
+    }
+}

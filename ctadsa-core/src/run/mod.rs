@@ -1,0 +1,6 @@
+//! The jobs the binary runs, as library code so that the CLI only parses and prints and the
+//! tests call the same code: one completion run in its output folder (start, resume,
+//! checkpoints, stop, outputs) and the cells of an experiment matrix.
+
+pub mod completion;
+pub mod experiment;
