@@ -290,6 +290,9 @@ pub struct OutputConfig {
     /// volume, projected into every view, best matches the views' vessel masks. `mc_level` is
     /// then ignored.
     pub level_from_views: bool,
+    /// Vessel-mask threshold of the views' masks that `level_from_views` matches (fraction of
+    /// the view's 99.5th percentile, as `init.mask_threshold`); 0 = `init.mask_threshold`.
+    pub level_mask_threshold: f64,
     /// Keep the prior: the completed surface is the prior mesh joined with the extracted
     /// surface's new vessels (its parts outside the prior and farther than `keep_prior_mm`
     /// from it).
@@ -308,6 +311,7 @@ impl Default for OutputConfig {
             mesh_format: "obj".into(),
             metric_samples: 50_000,
             min_island_mm2: 0.0,
+            level_mask_threshold: 0.0,
             level_from_views: true,
             keep_prior: true,
             keep_prior_mm: 0.3,
@@ -458,6 +462,11 @@ impl Config {
         check(self.run.image_binning >= 1, "run.image_binning", "must be ≥ 1")?;
         check(self.init.n1 + self.init.n2 >= 1, "init.n1", "n1 + n2 must be ≥ 1")?;
         check((0.0..1.0).contains(&self.init.mask_threshold), "init.mask_threshold", "must be in [0, 1)")?;
+        check(
+            (0.0..1.0).contains(&self.output.level_mask_threshold),
+            "output.level_mask_threshold",
+            "must be in [0, 1)",
+        )?;
         check(self.init.knn >= 1, "init.knn", "must be ≥ 1")?;
         check(self.init.n2_voxel_mm >= 0.0, "init.n2_voxel_mm", "must be ≥ 0")?;
         check(

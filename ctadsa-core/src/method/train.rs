@@ -85,8 +85,8 @@ fn training_settings(cfg: &Config) -> String {
     c.to_toml()
 }
 
-/// `section.key` paths whose values differ between two TOML documents.
-fn toml_differences(a: &str, b: &str) -> Vec<String> {
+/// `section.key` → value of every setting in a TOML document.
+fn flat_settings(text: &str) -> std::collections::BTreeMap<String, String> {
     fn flatten(prefix: &str, v: &toml::Value, out: &mut std::collections::BTreeMap<String, String>) {
         match v {
             toml::Value::Table(t) => {
@@ -100,16 +100,28 @@ fn toml_differences(a: &str, b: &str) -> Vec<String> {
             }
         }
     }
-    let parse = |s: &str| {
-        let mut out = std::collections::BTreeMap::new();
-        if let Ok(v) = toml::from_str::<toml::Table>(s) {
-            flatten("", &toml::Value::Table(v), &mut out);
-        }
-        out
-    };
-    let (a, b) = (parse(a), parse(b));
+    let mut out = std::collections::BTreeMap::new();
+    if let Ok(v) = toml::from_str::<toml::Table>(text) {
+        flatten("", &toml::Value::Table(v), &mut out);
+    }
+    out
+}
+
+/// The training settings (`section.key`) in which a checkpoint's `saved` settings and the
+/// `current` ones differ. `[output]` never counts; a key that only one side has (a setting added
+/// or removed between versions) counts only when its value is not the default.
+fn settings_differences(saved: &str, current: &str) -> Vec<String> {
+    let (a, b) = (flat_settings(saved), flat_settings(current));
+    let defaults = flat_settings(&training_settings(&Config::default()));
     let keys: std::collections::BTreeSet<&String> = a.keys().chain(b.keys()).collect();
-    keys.into_iter().filter(|k| a.get(*k) != b.get(*k)).cloned().collect()
+    keys.into_iter()
+        .filter(|k| !k.starts_with("output."))
+        .filter(|k| {
+            let value = |side: &std::collections::BTreeMap<String, String>| side.get(*k).or(defaults.get(*k)).cloned();
+            value(&a) != value(&b)
+        })
+        .cloned()
+        .collect()
 }
 
 /// The case's images and views after the run's view selection and binning.
@@ -338,24 +350,94 @@ impl Trainer {
         d.enabled && self.iteration < d.until
     }
 
+    /// The views of this step and their targets (all views, or `run.views_per_step` of them).
+    fn step_batch(&mut self) -> Result<(Vec<usize>, ViewSet, LossTargets)> {
+        let idx = self.step_views();
+        if idx.len() == self.views.len() {
+            return Ok((idx, self.views.clone(), self.targets.clone()));
+        }
+        let it = Tensor::<1, Int>::from_data(
+            TensorData::new(idx.iter().map(|&i| i as i64).collect::<Vec<_>>(), [idx.len()]),
+            &self.device,
+        );
+        let (views, targets) = (self.views.select(&idx)?, self.targets.select(it));
+        Ok((idx, views, targets))
+    }
+
+    /// Renders `gaussians` into `views` (the step's views, indices `idx` into the case's), each
+    /// through its pose correction when poses are refined. `probe` collects the screen-space
+    /// gradients that drive densification.
+    fn render_views(
+        &self,
+        gaussians: &ctadsa_render::Gaussians,
+        probe: Tensor<2>,
+        idx: &[usize],
+        views: &ViewSet,
+    ) -> Result<Tensor<3>> {
+        let Some((poses, _)) = &self.poses else {
+            return Ok(render_with_stats(gaussians, probe, views, &self.settings)?);
+        };
+        let mut per_view = Vec::with_capacity(idx.len());
+        for (k, &v) in idx.iter().enumerate() {
+            let seen = poses.apply(gaussians, v);
+            per_view.push(render_with_stats(&seen, probe.clone(), &views.select(&[k])?, &self.settings)?);
+        }
+        Ok(Tensor::cat(per_view, 0))
+    }
+
+    /// The prior-anchor term at iteration `t` (mean squared distance of a random sample of
+    /// centres to the prior, for those near it), or `None` before `loss.pa_start` or when no
+    /// sampled centre is near the prior.
+    fn anchor_loss(&self, model: &GaussianModel, t: usize) -> Option<Tensor<1>> {
+        let cfg = &self.cfg;
+        let anchor = self.anchor.as_ref().filter(|_| t >= cfg.loss.pa_start && cfg.loss.pa_weight > 0.0)?;
+        let n = model.len();
+        let mut rng = ChaCha8Rng::seed_from_u64(cfg.run.seed ^ 0x9A ^ (t as u64).wrapping_mul(0x9E37_79B9));
+        let m = if cfg.loss.pa_samples == 0 { n } else { cfg.loss.pa_samples.min(n) };
+        let sample: Vec<i64> =
+            if m == n { (0..n as i64).collect() } else { (0..m).map(|_| rng.random_range(0..n as i64)).collect() };
+        let sel = Tensor::<1, Int>::from_data(TensorData::new(sample, [m]), &self.device);
+        let chosen = model.means.val().select(0, sel);
+        let (keep, tgt) = anchor.targets(&host_vec(chosen.clone()));
+        if keep.is_empty() {
+            return None;
+        }
+        let k = keep.len();
+        let ki = Tensor::<1, Int>::from_data(
+            TensorData::new(keep.iter().map(|&i| i as i64).collect::<Vec<_>>(), [k]),
+            &self.device,
+        );
+        let target = Tensor::<2>::from_data(TensorData::new(tgt, [k, 3]), &self.device);
+        Some((chosen.select(0, ki) - target).powi_scalar(2).sum_dim(1).mean())
+    }
+
+    /// The pose corrections' optimizer step at iteration `t` (from `pose.start` on).
+    fn step_poses(&mut self, grads: &mut burn::tensor::Gradients, t: usize) {
+        let Some((poses, mut optim)) = self.poses.take() else { return };
+        let pose_grads = GradientsParams::from_module(grads, &poses);
+        let poses = if t >= self.cfg.pose.start {
+            let (p, iterations) = (&self.cfg.pose, self.cfg.run.iterations);
+            let lr = ModuleLrScheduler::new(ConstantLr::new(decayed(p.lr_rotation_rad, t, iterations)))
+                .with_group(
+                    ParamGroup::from_path("translations_mm"),
+                    ConstantLr::new(decayed(p.lr_translation_mm, t, iterations)),
+                )
+                .step();
+            optim.step(lr, poses, pose_grads)
+        } else {
+            poses
+        };
+        self.poses = Some((poses, optim));
+    }
+
     /// One optimisation step.
     pub fn step(&mut self) -> Result<StepLog> {
         let cfg = self.cfg.clone();
         let t = self.iteration;
         let (lr, field_lr) = self.learning_rates();
-        let idx = self.step_views();
-        let (views, targets) = if idx.len() == self.views.len() {
-            (self.views.clone(), self.targets.clone())
-        } else {
-            let it = Tensor::<1, Int>::from_data(
-                TensorData::new(idx.iter().map(|&i| i as i64).collect::<Vec<_>>(), [idx.len()]),
-                &self.device,
-            );
-            (self.views.select(&idx)?, self.targets.select(it))
-        };
+        let (idx, views, targets) = self.step_batch()?;
         // Borrowed until the optimizer step, so that no error path can lose the model.
         let model = self.model.as_ref().expect("model present between steps");
-        let n = model.len();
         let mut times = StageTimes::default();
         let clock = Instant::now();
         let densities = model.field.forward(model.means.val());
@@ -367,18 +449,8 @@ impl Trainer {
         };
         times.field = clock.elapsed().as_secs_f64();
         let clock = Instant::now();
-        let probe = Tensor::<2>::zeros([n, 2], &self.device).require_grad();
-        let image = match &self.poses {
-            None => render_with_stats(&gaussians, probe.clone(), &views, &self.settings)?,
-            Some((poses, _)) => {
-                let mut per_view = Vec::with_capacity(idx.len());
-                for (k, &v) in idx.iter().enumerate() {
-                    let seen = poses.apply(&gaussians, v);
-                    per_view.push(render_with_stats(&seen, probe.clone(), &views.select(&[k])?, &self.settings)?);
-                }
-                Tensor::cat(per_view, 0)
-            }
-        };
+        let probe = Tensor::<2>::zeros([model.len(), 2], &self.device).require_grad();
+        let image = self.render_views(&gaussians, probe.clone(), &idx, &views)?;
         times.render = clock.elapsed().as_secs_f64();
         let clock = Instant::now();
         let (render_loss, l1, ssim) = targets.render_loss(image.clone(), cfg.loss.lambda_dssim);
@@ -390,26 +462,9 @@ impl Trainer {
             loss = loss + f.mul_scalar(cfg.loss.fn_weight);
         }
         let mut pa_value = 0.0;
-        if let (true, Some(anchor)) = (t >= cfg.loss.pa_start && cfg.loss.pa_weight > 0.0, &self.anchor) {
-            let mut rng = ChaCha8Rng::seed_from_u64(cfg.run.seed ^ 0x9A ^ (t as u64).wrapping_mul(0x9E37_79B9));
-            let m = if cfg.loss.pa_samples == 0 { n } else { cfg.loss.pa_samples.min(n) };
-            let sample: Vec<i64> =
-                if m == n { (0..n as i64).collect() } else { (0..m).map(|_| rng.random_range(0..n as i64)).collect() };
-            let sel = Tensor::<1, Int>::from_data(TensorData::new(sample.clone(), [m]), &self.device);
-            let chosen = model.means.val().select(0, sel);
-            let host: Vec<f32> = host_vec(chosen.clone());
-            let (keep, tgt) = anchor.targets(&host);
-            if !keep.is_empty() {
-                let k = keep.len();
-                let ki = Tensor::<1, Int>::from_data(
-                    TensorData::new(keep.iter().map(|&i| i as i64).collect::<Vec<_>>(), [k]),
-                    &self.device,
-                );
-                let target = Tensor::<2>::from_data(TensorData::new(tgt, [k, 3]), &self.device);
-                let pa = (chosen.select(0, ki) - target).powi_scalar(2).sum_dim(1).mean();
-                pa_value = pa.clone().into_scalar::<f32>() as f64;
-                loss = loss + pa.mul_scalar(cfg.loss.pa_weight);
-            }
+        if let Some(pa) = self.anchor_loss(model, t) {
+            pa_value = pa.clone().into_scalar::<f32>() as f64;
+            loss = loss + pa.mul_scalar(cfg.loss.pa_weight);
         }
         let loss_value = loss.clone().into_scalar::<f32>() as f64;
         if !loss_value.is_finite() {
@@ -418,27 +473,12 @@ impl Trainer {
         times.losses = clock.elapsed().as_secs_f64();
         let clock = Instant::now();
         let mut grads = loss.backward();
-        if let Some((poses, mut optim)) = self.poses.take() {
-            let pose_grads = GradientsParams::from_module(&mut grads, &poses);
-            let poses = if t >= cfg.pose.start {
-                let p = &cfg.pose;
-                let lr = ModuleLrScheduler::new(ConstantLr::new(decayed(p.lr_rotation_rad, t, cfg.run.iterations)))
-                    .with_group(
-                        ParamGroup::from_path("translations_mm"),
-                        ConstantLr::new(decayed(p.lr_translation_mm, t, cfg.run.iterations)),
-                    )
-                    .step();
-                optim.step(lr, poses, pose_grads)
-            } else {
-                poses
-            };
-            self.poses = Some((poses, optim));
-        }
+        self.step_poses(&mut grads, t);
+        let model = self.model.as_ref().expect("model present between steps");
         if self.densify_active()
             && let Some(g) = probe.grad(&grads)
         {
-            let host: Vec<f32> = host_vec(g);
-            self.stats.add(&host);
+            self.stats.add(&host_vec(g));
         }
         let field_grads = GradientsParams::from_module(&mut grads, &model.field);
         let gaussian_ids = [model.means.id, model.raw_scales.id, model.rotations.id];
@@ -554,7 +594,7 @@ impl Trainer {
         let state: CheckpointState = serde_json::from_slice(&read_file(&state_path)?)
             .map_err(|e| CoreError::format(&state_path, format!("invalid checkpoint state: {e}")))?;
         if let Some(saved) = &state.training_settings {
-            let differ = toml_differences(saved, &training_settings(&cfg));
+            let differ = settings_differences(saved, &training_settings(&cfg));
             if !differ.is_empty() {
                 return Err(CoreError::format(
                     &state_path,
@@ -692,5 +732,76 @@ impl Trainer {
         let (m, ..) = self.host_gaussians();
         let n = (m.len() / 3).max(1) as f64;
         m.chunks_exact(3).fold(DVec3::ZERO, |acc, c| acc + DVec3::new(c[0] as f64, c[1] as f64, c[2] as f64)) / n
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn decayed_is_log_linear_between_its_ends_and_linear_through_zero() {
+        assert_eq!(decayed([1e-2, 1e-4], 0, 100), 1e-2);
+        assert!((decayed([1e-2, 1e-4], 50, 100) - 1e-3).abs() < 1e-15, "geometric midpoint");
+        assert!((decayed([1e-2, 1e-4], 100, 100) - 1e-4).abs() < 1e-18);
+        assert_eq!(decayed([1e-2, 1e-4], 500, 100), decayed([1e-2, 1e-4], 100, 100), "clamped after the end");
+        assert_eq!(decayed([0.0, 1.0], 25, 100), 0.25, "linear when one end is 0");
+    }
+
+    #[test]
+    fn settings_differences_name_changed_keys_and_ignore_output_and_new_defaults() {
+        let base = Config::default();
+        let saved = training_settings(&base);
+        assert!(settings_differences(&saved, &saved).is_empty());
+        let mut other = base.clone();
+        other.init.n1 += 1;
+        other.loss.pa_weight *= 2.0;
+        other.output.mc_level = 0.5;
+        other.run.iterations += 10;
+        assert_eq!(settings_differences(&saved, &training_settings(&other)), vec!["init.n1", "loss.pa_weight"]);
+        // A checkpoint of a version without a setting that now exists: equal while the setting
+        // keeps its default, different once it does not.
+        let without = saved.replace("knn = 3\n", "");
+        assert_ne!(without, saved, "the test removes a key");
+        assert!(settings_differences(&without, &saved).is_empty());
+        let mut knn = base.clone();
+        knn.init.knn = 5;
+        assert_eq!(settings_differences(&without, &training_settings(&knn)), vec!["init.knn"]);
+        // Old checkpoints stored [output]; it never counts.
+        assert!(settings_differences(&(saved.clone() + "\n[output]\nmc_level = 0.9\n"), &saved).is_empty());
+    }
+
+    #[test]
+    fn checkpoints_are_listed_newest_first_and_incomplete_ones_are_skipped() {
+        let dir = std::env::temp_dir().join(format!("ctadsa-ckpts-{}", std::process::id()));
+        for (name, complete) in
+            [("ckpt-0000100", true), ("ckpt-0000020", true), ("ckpt-0000300", false), (".ckpt-0000400.partial-9", true)]
+        {
+            std::fs::create_dir_all(dir.join(name)).unwrap();
+            if complete {
+                std::fs::write(dir.join(name).join("state.json"), "{}").unwrap();
+            }
+        }
+        let names: Vec<String> =
+            Trainer::checkpoints(&dir).iter().map(|p| p.file_name().unwrap().to_string_lossy().into()).collect();
+        assert_eq!(names, ["ckpt-0000100", "ckpt-0000020"]);
+        assert!(Trainer::checkpoints(&dir.join("absent")).is_empty());
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn initial_density_makes_the_blobs_carry_the_images_mass() {
+        let view = ConeBeamView::from_tigre(&ctadsa_render::TigreGeometry::reference(0.0)).unwrap();
+        let views = ViewSet::new(vec![view]).unwrap();
+        let (w, h) = (view.width(), view.height());
+        let bounds = ScaleBounds { min_mm: 0.1, max_mm: 4.0 };
+        let raw = bounds.inverse(1.0);
+        let init =
+            GaussianInit { means: vec![0.0; 6], raw_scales: vec![raw; 6], rotations: [1.0, 0.0, 0.0, 0.0].repeat(2) };
+        let image = |v: f32| Image { width: w, height: h, data: vec![v; (w * h) as usize] };
+        let d1 = estimate_initial_density(&views, &[image(1.0)], &init, bounds);
+        let d2 = estimate_initial_density(&views, &[image(2.0)], &init, bounds);
+        assert!(d1 > 0.0 && (d2 / d1 - 2.0).abs() < 1e-9, "density scales with the image mass: {d1} {d2}");
+        assert_eq!(estimate_initial_density(&views, &[image(0.0)], &init, bounds), 1.0, "empty images: 1");
     }
 }

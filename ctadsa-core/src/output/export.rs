@@ -23,7 +23,7 @@ use crate::eval::metrics::RegionScores;
 use crate::eval::score::{CaseTruth, EvalOptions};
 use crate::eval::surface_metrics::Coverage;
 use crate::method::model::host_vec;
-use crate::method::train::Trainer;
+use crate::method::train::{StepLog, Trainer};
 use crate::output::extraction::{LevelScore, best_level, density_scale, join_prior, prior_solid, score_levels};
 use crate::output::plot::{PALETTE, Series, line_plot};
 use ctadsa_render::ConeBeamView;
@@ -173,7 +173,50 @@ fn write_poses(dir: &Path, case: &Case, trainer: &Trainer, prior: Option<&TriMes
 pub fn write_outputs(dir: &Path, case: &Case, trainer: &Trainer) -> Result<RunSummary> {
     let cfg = &trainer.cfg;
     write_file(&dir.join("config.toml"), cfg.to_toml().as_bytes())?;
-    // Gaussians.
+    let gaussians = write_gaussians(dir, trainer)?;
+    let volume = density_volume(trainer)?;
+    write_nifti(&dir.join("density.nii.gz"), &volume, "ctadsa density (per mm)")?;
+    let prior = case.prior_mesh()?;
+    let surface = extract_completed_surface(dir, trainer, &volume, prior.as_ref())?;
+    let mesh = &surface.mesh;
+    let renders = trainer.render_all()?;
+    write_renders(dir, case, trainer, &renders)?;
+    write_loss(dir, &trainer.history)?;
+    write_mesh_pictures(dir, mesh, prior.as_ref())?;
+    // Metrics.
+    let options = EvalOptions { samples: cfg.output.metric_samples, ..EvalOptions::default() };
+    let truth = CaseTruth::load(case)?;
+    let scored = truth.as_ref().map(|t| t.evaluate(mesh, &options));
+    let prior_scored = match (&truth, &prior) {
+        (Some(t), Some(p)) => Some(t.evaluate(p, &options)),
+        _ => None,
+    };
+    let pose_errors = write_poses(dir, case, trainer, prior.as_ref())?;
+    let summary = RunSummary {
+        case_dir: case.dir.display().to_string(),
+        iterations: trainer.iteration,
+        gaussians,
+        n1: trainer.n1,
+        n2: trainer.n2,
+        mc_level: surface.level,
+        level_scores: surface.level_scores,
+        mesh_triangles: mesh.faces.len(),
+        islands_dropped: surface.islands_dropped,
+        final_loss: trainer.history.last().map_or(f64::NAN, |s| s.loss),
+        metrics: scored.as_ref().map(|r| r.scores),
+        coverage: scored.as_ref().map(|r| r.coverage),
+        paper_metrics: scored.as_ref().map(|r| r.paper),
+        prior_metrics: prior_scored.as_ref().map(|r| r.scores),
+        prior_coverage: prior_scored.as_ref().map(|r| r.coverage),
+        pose_errors,
+    };
+    let summary_path = dir.join("summary.json");
+    write_file(&summary_path, to_json(&summary, &summary_path)?.as_bytes())?;
+    Ok(summary)
+}
+
+/// `gaussians.ply`: centres and scales (mm), quaternions, densities. Returns the count.
+fn write_gaussians(dir: &Path, trainer: &Trainer) -> Result<usize> {
     let (means, scales, rotations, densities) = trainer.host_gaussians();
     let rows: Vec<Vec<f32>> = (0..densities.len())
         .map(|i| {
@@ -190,55 +233,72 @@ pub fn write_outputs(dir: &Path, case: &Case, trainer: &Trainer) -> Result<RunSu
         &rows,
         "ctadsa Gaussians: centres and scales in mm, quaternion w x y z, density per mm",
     )?;
-    // Volume and mesh.
-    let volume = density_volume(trainer)?;
-    write_nifti(&dir.join("density.nii.gz"), &volume, "ctadsa density (per mm)")?;
-    let prior = case.prior_mesh()?;
-    let solid = match (&prior, cfg.output.keep_prior) {
-        (Some(p), true) => Some(prior_solid(p, &volume)),
-        _ => None,
-    };
-    let level_scores = if cfg.output.level_from_views {
-        score_levels(&volume, trainer.views.views(), &trainer.images, cfg.init.mask_threshold, solid.as_ref())
+    Ok(densities.len())
+}
+
+/// The completed surface and how it was extracted.
+struct CompletedSurface {
+    mesh: TriMesh,
+    /// Iso-level (density units).
+    level: f64,
+    level_scores: Vec<LevelScore>,
+    islands_dropped: usize,
+}
+
+/// The iso-surface of the density at the level from the views (or the configured one), small
+/// islands dropped, joined with the prior when it is kept; writes `mesh.*` (and the
+/// intermediate `mesh-raw.*` / `mesh-extracted.*`).
+fn extract_completed_surface(
+    dir: &Path,
+    trainer: &Trainer,
+    volume: &Volume<f32>,
+    prior: Option<&TriMesh>,
+) -> Result<CompletedSurface> {
+    let out = &trainer.cfg.output;
+    let solid = prior.filter(|_| out.keep_prior).map(|p| prior_solid(p, volume));
+    let level_scores = if out.level_from_views {
+        let threshold =
+            if out.level_mask_threshold > 0.0 { out.level_mask_threshold } else { trainer.cfg.init.mask_threshold };
+        score_levels(volume, trainer.views.views(), &trainer.images, threshold, solid.as_ref())
     } else {
         Vec::new()
     };
     let level = match best_level(&level_scores) {
         Some(best) => best.level,
-        None => mc_level(&volume, cfg.output.mc_level, cfg.output.mc_relative),
+        None => mc_level(volume, out.mc_level, out.mc_relative),
     };
-    let raw_mesh = extract_isosurface(&volume, level as f32);
-    let (extracted, islands_dropped) = if cfg.output.min_island_mm2 > 0.0 {
-        let (kept, dropped) = raw_mesh.without_islands_below(cfg.output.min_island_mm2);
-        write_mesh(&dir.join(format!("mesh-raw.{}", cfg.output.mesh_format)), &raw_mesh)?;
+    let raw_mesh = extract_isosurface(volume, level as f32);
+    let (extracted, islands_dropped) = if out.min_island_mm2 > 0.0 {
+        let (kept, dropped) = raw_mesh.without_islands_below(out.min_island_mm2);
+        write_mesh(&dir.join(format!("mesh-raw.{}", out.mesh_format)), &raw_mesh)?;
         (kept, dropped)
     } else {
         (raw_mesh, 0)
     };
-    let mesh = match (&prior, &solid) {
+    let mesh = match (prior, &solid) {
         (Some(p), Some(s)) => {
-            write_mesh(&dir.join(format!("mesh-extracted.{}", cfg.output.mesh_format)), &extracted)?;
-            join_prior(&extracted, p, s, cfg.output.keep_prior_mm)
+            write_mesh(&dir.join(format!("mesh-extracted.{}", out.mesh_format)), &extracted)?;
+            join_prior(&extracted, p, s, out.keep_prior_mm)
         }
         _ => extracted,
     };
-    write_mesh(&dir.join(format!("mesh.{}", cfg.output.mesh_format)), &mesh)?;
-    // Renders.
-    let renders = trainer.render_all()?;
-    write_renders(dir, case, trainer, &renders)?;
-    // Loss curve.
-    let h = &trainer.history;
+    write_mesh(&dir.join(format!("mesh.{}", out.mesh_format)), &mesh)?;
+    Ok(CompletedSurface { mesh, level, level_scores, islands_dropped })
+}
+
+/// `loss.csv` and `loss.png` (log scale; a term is drawn where it is positive).
+fn write_loss(dir: &Path, history: &[StepLog]) -> Result<()> {
     let mut csv = String::from("iteration,loss,l1,ssim,fn_loss,pa_loss,gaussians\n");
-    for s in h {
+    for s in history {
         csv.push_str(&format!(
             "{},{},{},{},{},{},{}\n",
             s.iteration, s.loss, s.l1, s.ssim, s.fn_loss, s.pa_loss, s.gaussians
         ));
     }
     write_file(&dir.join("loss.csv"), csv.as_bytes())?;
-    // Log scale: a term is drawn where it is positive; terms that never are (switched off) are left out.
-    let pick = |f: fn(&crate::method::train::StepLog) -> f64| {
-        h.iter().map(|s| (s.iteration as f64, f(s))).filter(|p| p.1 > 0.0).collect::<Vec<_>>()
+    // Terms that are never positive (switched off) are left out.
+    let pick = |f: fn(&StepLog) -> f64| {
+        history.iter().map(|s| (s.iteration as f64, f(s))).filter(|p| p.1 > 0.0).collect::<Vec<_>>()
     };
     let series: Vec<Series> = [
         Series { name: "TOTAL".into(), points: pick(|s| s.loss), rgb: PALETTE[5] },
@@ -250,17 +310,20 @@ pub fn write_outputs(dir: &Path, case: &Case, trainer: &Trainer) -> Result<RunSu
     .into_iter()
     .filter(|s| !s.points.is_empty())
     .collect();
-    line_plot(&dir.join("loss.png"), "TRAINING LOSS", "ITERATION", "LOSS (LOG)", &series, true)?;
-    // Pictures of the mesh: prior in red, the rest of the completed mesh in blue.
-    let mut parts = vec![Coloured { mesh: &mesh, rgb: [60, 120, 220] }];
-    if let Some(p) = &prior {
+    line_plot(&dir.join("loss.png"), "TRAINING LOSS", "ITERATION", "LOSS (LOG)", &series, true)
+}
+
+/// `mesh.png` (completed mesh blue, prior red) and, with a prior, `mesh-completion.png` as the
+/// paper's Fig. 4: the completed surface where the prior had vessels in red, the new vessels in
+/// blue, from four directions.
+fn write_mesh_pictures(dir: &Path, mesh: &TriMesh, prior: Option<&TriMesh>) -> Result<()> {
+    let mut parts = vec![Coloured { mesh, rgb: [60, 120, 220] }];
+    if let Some(p) = prior {
         parts.push(Coloured { mesh: p, rgb: [210, 60, 50] });
     }
     write_mesh_png(&dir.join("mesh.png"), &parts, &standard_views(360))?;
-    // As the paper's Fig. 4: the completed surface, where the prior had vessels in red and the
-    // new vessels in blue, from four directions.
-    if let Some(p) = &prior {
-        let (old, new) = split_by_distance(&mesh, p, 1.0);
+    if let Some(p) = prior {
+        let (old, new) = split_by_distance(mesh, p, 1.0);
         let mut views = standard_views(320);
         views.push(OrbitView { azimuth_deg: 0.0, elevation_deg: 89.0, width: 320, height: 320 });
         write_mesh_png(
@@ -269,34 +332,5 @@ pub fn write_outputs(dir: &Path, case: &Case, trainer: &Trainer) -> Result<RunSu
             &views,
         )?;
     }
-    // Metrics.
-    let options = EvalOptions { samples: cfg.output.metric_samples, ..EvalOptions::default() };
-    let truth = CaseTruth::load(case)?;
-    let scored = truth.as_ref().map(|t| t.evaluate(&mesh, &options));
-    let prior_scored = match (&truth, &prior) {
-        (Some(t), Some(p)) => Some(t.evaluate(p, &options)),
-        _ => None,
-    };
-    let pose_errors = write_poses(dir, case, trainer, prior.as_ref())?;
-    let summary = RunSummary {
-        case_dir: case.dir.display().to_string(),
-        iterations: trainer.iteration,
-        gaussians: densities.len(),
-        n1: trainer.n1,
-        n2: trainer.n2,
-        mc_level: level,
-        level_scores,
-        mesh_triangles: mesh.faces.len(),
-        islands_dropped,
-        final_loss: h.last().map_or(f64::NAN, |s| s.loss),
-        metrics: scored.as_ref().map(|r| r.scores),
-        coverage: scored.as_ref().map(|r| r.coverage),
-        paper_metrics: scored.as_ref().map(|r| r.paper),
-        prior_metrics: prior_scored.as_ref().map(|r| r.scores),
-        prior_coverage: prior_scored.as_ref().map(|r| r.coverage),
-        pose_errors,
-    };
-    let summary_path = dir.join("summary.json");
-    write_file(&summary_path, to_json(&summary, &summary_path)?.as_bytes())?;
-    Ok(summary)
+    Ok(())
 }

@@ -66,158 +66,12 @@ pub fn write_report(run_dir: &Path) -> Result<PathBuf> {
     });
     let title = case.as_ref().map_or("ctadsa run".to_string(), |c| format!("ctadsa — {}", c.name));
     let mut html = String::new();
-    let _ = write!(
-        html,
-        "<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>{}</title><style>\
-         body{{font-family:sans-serif;max-width:1200px;margin:2em auto;color:#222}}\
-         img{{max-width:100%;border:1px solid #ccc;margin:4px 0}}table{{border-collapse:collapse}}\
-         td,th{{border:1px solid #bbb;padding:3px 8px;text-align:right}}td:first-child,th:first-child{{text-align:left}}\
-         pre{{background:#f5f5f5;padding:1em;overflow:auto}}.key span{{padding:0 .6em;color:#fff}}</style></head><body>",
-        escape(&title)
-    );
-    let _ = write!(
-        html,
-        "<h1>{}</h1><p>Run folder: <code>{}</code>",
-        escape(&title),
-        escape(&run_dir.display().to_string())
-    );
-    if let Some(d) = &case_dir {
-        let _ = write!(html, "; case: <code>{}</code>", escape(&d.display().to_string()));
-    }
-    let _ = write!(
-        html,
-        ". {} iterations, {} Gaussians ({} seeded on the prior, {} from the images), {} triangles.</p>",
-        summary["iterations"], summary["gaussians"], summary["n1"], summary["n2"], summary["mesh_triangles"]
-    );
-
-    // Inputs.
-    html.push_str("<h2>Inputs</h2>");
-    match &case {
-        Some(c) => {
-            html.push_str("<table><tr><th>view</th><th>image</th><th>geometry</th></tr>");
-            for v in &c.views {
-                let g = match &v.geometry {
-                    ViewGeometry::Tigre {
-                        dsd_mm, dso_mm, detector_px, pixel_mm, primary_deg, secondary_deg, ..
-                    } => {
-                        format!(
-                            "C-arm: primary {primary_deg:.1}°, secondary {secondary_deg:.1}°, DSD {dsd_mm} mm, DSO {dso_mm} mm, \
-                             {} × {} px of {:.3} × {:.3} mm",
-                            detector_px[0], detector_px[1], pixel_mm[0], pixel_mm[1]
-                        )
-                    }
-                    ViewGeometry::Matrix { detector_px, focal_px, .. } => format!(
-                        "registered world-to-camera matrix, focal {:.1} px, {} × {} px",
-                        focal_px[0], detector_px[0], detector_px[1]
-                    ),
-                };
-                let _ = write!(
-                    html,
-                    "<tr><td>{}</td><td>{}</td><td>{}</td></tr>",
-                    escape(&v.name),
-                    escape(&v.image),
-                    escape(&g)
-                );
-            }
-            html.push_str("</table>");
-            if let Some(p) = &c.prior {
-                let _ = write!(html, "<p>Prior: <code>{}</code> — {}</p>", escape(&p.mesh), escape(&p.description));
-            }
-            let _ = write!(
-                html,
-                "<p>Images: {}. Source: {}.</p>",
-                escape(&c.image_values.units),
-                escape(&c.provenance.source)
-            );
-            if !c.provenance.notes.is_empty() {
-                html.push_str("<details><summary>Provenance notes</summary><ul>");
-                for n in &c.provenance.notes {
-                    let _ = write!(html, "<li>{}</li>", escape(n));
-                }
-                html.push_str("</ul></details>");
-            }
-        }
-        None => html.push_str("<p>The case folder named in summary.json could not be read; inputs not shown.</p>"),
-    }
-
-    // Renders against targets.
-    html.push_str("<h2>Renders against targets</h2><p>Each row: target | render of the completed model | difference (red: render too bright, blue: too dark).</p>");
-    let mut renders: Vec<PathBuf> = std::fs::read_dir(run_dir.join("renders"))
-        .map(|d| {
-            d.filter_map(|e| e.ok().map(|e| e.path())).filter(|p| p.extension().is_some_and(|e| e == "png")).collect()
-        })
-        .unwrap_or_default();
-    renders.sort();
-    for r in &renders {
-        let name = r.file_stem().and_then(|s| s.to_str()).unwrap_or("view");
-        let _ = write!(
-            html,
-            "<h3>{}</h3>{}",
-            escape(name),
-            png_tag(r, &format!("view {name}: target, render, difference"))?
-        );
-    }
-
-    // Mesh.
-    html.push_str("<h2>Completed vessel tree</h2>");
-    let fig4 = run_dir.join("mesh-completion.png");
-    if fig4.exists() {
-        html.push_str("<p class=\"key\"><span style=\"background:#d23c32\">prior (CTA)</span> <span style=\"background:#3c78dc\">new vessels (from the DSA views)</span> — views from AP, LAT, oblique and above.</p>");
-        html.push_str(&png_tag(&fig4, "completed mesh: prior part and new vessels")?);
-    } else if run_dir.join("mesh.png").exists() {
-        html.push_str("<p>Completed surface (blue) with the prior (red).</p>");
-        html.push_str(&png_tag(&run_dir.join("mesh.png"), "completed mesh and prior")?);
-    }
-
-    // Metrics.
-    html.push_str("<h2>Metrics</h2>");
-    if summary["metrics"].is_null() {
-        html.push_str("<p>No ground truth in the case: no metrics.</p>");
-    } else {
-        html.push_str("<table><tr><th>surface</th><th>region</th><th>CD mean (mm)</th><th>CD sum (mm)</th><th>HD95 (mm)</th><th>HD (mm)</th></tr>");
-        metrics_rows(&mut html, "completed", &summary["metrics"]);
-        if !summary["prior_metrics"].is_null() {
-            metrics_rows(&mut html, "prior alone", &summary["prior_metrics"]);
-        }
-        html.push_str("</table><p>Definitions: docs/METRICS.md (CD sum = the paper's convention); ∞: the surface has no point in that region.</p>");
-    }
-
-    // Poses.
-    let poses_path = run_dir.join("poses.json");
-    if poses_path.exists() {
-        let poses: Value = serde_json::from_slice(&read_file(&poses_path)?)
-            .map_err(|e| CoreError::format(&poses_path, format!("invalid poses: {e}")))?;
-        html.push_str("<h2>Pose refinement</h2><table><tr><th>view</th><th>rotation (°, axis-angle)</th><th>translation (mm)</th></tr>");
-        for v in poses["views"].as_array().into_iter().flatten() {
-            let vec3 =
-                |x: &Value| x.as_array().map_or("–".into(), |a| a.iter().map(num).collect::<Vec<_>>().join(", "));
-            let _ = write!(
-                html,
-                "<tr><td>{}</td><td>{}</td><td>{}</td></tr>",
-                escape(v["name"].as_str().unwrap_or("?")),
-                vec3(&v["rotation_deg"]),
-                vec3(&v["translation_mm"])
-            );
-        }
-        html.push_str("</table>");
-        if let Some(errors) = summary["pose_errors"].as_array() {
-            html.push_str("<p>Against the known true poses:</p><table><tr><th>view</th><th>reprojection before (px)</th><th>after (px)</th><th>rotation error (°)</th><th>translation error (mm)</th></tr>");
-            for e in errors {
-                let _ = write!(
-                    html,
-                    "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
-                    e["view"],
-                    num(&e["reprojection_before_px"]),
-                    num(&e["reprojection_after_px"]),
-                    num(&e["rotation_error_deg"]),
-                    num(&e["translation_error_mm"])
-                );
-            }
-            html.push_str("</table>");
-        }
-    }
-
-    // Loss and config.
+    header(&mut html, &title, run_dir, case_dir.as_deref(), &summary);
+    inputs(&mut html, case.as_ref());
+    renders(&mut html, run_dir)?;
+    completed_tree(&mut html, run_dir)?;
+    metrics(&mut html, &summary);
+    poses(&mut html, run_dir, &summary)?;
     if run_dir.join("loss.png").exists() {
         html.push_str("<h2>Training loss</h2>");
         html.push_str(&png_tag(&run_dir.join("loss.png"), "loss curve")?);
@@ -235,4 +89,161 @@ pub fn write_report(run_dir: &Path) -> Result<PathBuf> {
     let out = run_dir.join(REPORT_FILE);
     write_file(&out, html.as_bytes())?;
     Ok(out)
+}
+
+/// The page head, style and the run's one-line description.
+fn header(html: &mut String, title: &str, run_dir: &Path, case_dir: Option<&Path>, summary: &Value) {
+    let _ = write!(
+        html,
+        "<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>{}</title><style>\
+         body{{font-family:sans-serif;max-width:1200px;margin:2em auto;color:#222}}\
+         img{{max-width:100%;border:1px solid #ccc;margin:4px 0}}table{{border-collapse:collapse}}\
+         td,th{{border:1px solid #bbb;padding:3px 8px;text-align:right}}td:first-child,th:first-child{{text-align:left}}\
+         pre{{background:#f5f5f5;padding:1em;overflow:auto}}.key span{{padding:0 .6em;color:#fff}}</style></head><body>",
+        escape(title)
+    );
+    let _ = write!(
+        html,
+        "<h1>{}</h1><p>Run folder: <code>{}</code>",
+        escape(title),
+        escape(&run_dir.display().to_string())
+    );
+    if let Some(d) = case_dir {
+        let _ = write!(html, "; case: <code>{}</code>", escape(&d.display().to_string()));
+    }
+    let _ = write!(
+        html,
+        ". {} iterations, {} Gaussians ({} seeded on the prior, {} from the images), {} triangles.</p>",
+        summary["iterations"], summary["gaussians"], summary["n1"], summary["n2"], summary["mesh_triangles"]
+    );
+}
+
+/// One line describing a view's geometry.
+fn geometry_text(geometry: &ViewGeometry) -> String {
+    match geometry {
+        ViewGeometry::Tigre { dsd_mm, dso_mm, detector_px, pixel_mm, primary_deg, secondary_deg, .. } => format!(
+            "C-arm: primary {primary_deg:.1}°, secondary {secondary_deg:.1}°, DSD {dsd_mm} mm, DSO {dso_mm} mm, \
+             {} × {} px of {:.3} × {:.3} mm",
+            detector_px[0], detector_px[1], pixel_mm[0], pixel_mm[1]
+        ),
+        ViewGeometry::Matrix { detector_px, focal_px, .. } => format!(
+            "registered world-to-camera matrix, focal {:.1} px, {} × {} px",
+            focal_px[0], detector_px[0], detector_px[1]
+        ),
+    }
+}
+
+/// The case: views with their geometry, the prior, image units and provenance.
+fn inputs(html: &mut String, case: Option<&CaseFile>) {
+    html.push_str("<h2>Inputs</h2>");
+    let Some(c) = case else {
+        html.push_str("<p>The case folder named in summary.json could not be read; inputs not shown.</p>");
+        return;
+    };
+    html.push_str("<table><tr><th>view</th><th>image</th><th>geometry</th></tr>");
+    for v in &c.views {
+        let g = geometry_text(&v.geometry);
+        let _ =
+            write!(html, "<tr><td>{}</td><td>{}</td><td>{}</td></tr>", escape(&v.name), escape(&v.image), escape(&g));
+    }
+    html.push_str("</table>");
+    if let Some(p) = &c.prior {
+        let _ = write!(html, "<p>Prior: <code>{}</code> — {}</p>", escape(&p.mesh), escape(&p.description));
+    }
+    let _ = write!(html, "<p>Images: {}. Source: {}.</p>", escape(&c.image_values.units), escape(&c.provenance.source));
+    if !c.provenance.notes.is_empty() {
+        html.push_str("<details><summary>Provenance notes</summary><ul>");
+        for n in &c.provenance.notes {
+            let _ = write!(html, "<li>{}</li>", escape(n));
+        }
+        html.push_str("</ul></details>");
+    }
+}
+
+/// Target | render | difference of every view (`renders/*.png`).
+fn renders(html: &mut String, run_dir: &Path) -> Result<()> {
+    html.push_str("<h2>Renders against targets</h2><p>Each row: target | render of the completed model | difference (red: render too bright, blue: too dark).</p>");
+    let mut renders: Vec<PathBuf> = std::fs::read_dir(run_dir.join("renders"))
+        .map(|d| {
+            d.filter_map(|e| e.ok().map(|e| e.path())).filter(|p| p.extension().is_some_and(|e| e == "png")).collect()
+        })
+        .unwrap_or_default();
+    renders.sort();
+    for r in &renders {
+        let name = r.file_stem().and_then(|s| s.to_str()).unwrap_or("view");
+        let _ = write!(
+            html,
+            "<h3>{}</h3>{}",
+            escape(name),
+            png_tag(r, &format!("view {name}: target, render, difference"))?
+        );
+    }
+    Ok(())
+}
+
+/// The completed mesh, prior part and new vessels in two colours.
+fn completed_tree(html: &mut String, run_dir: &Path) -> Result<()> {
+    html.push_str("<h2>Completed vessel tree</h2>");
+    let fig4 = run_dir.join("mesh-completion.png");
+    if fig4.exists() {
+        html.push_str("<p class=\"key\"><span style=\"background:#d23c32\">prior (CTA)</span> <span style=\"background:#3c78dc\">new vessels (from the DSA views)</span> — views from AP, LAT, oblique and above.</p>");
+        html.push_str(&png_tag(&fig4, "completed mesh: prior part and new vessels")?);
+    } else if run_dir.join("mesh.png").exists() {
+        html.push_str("<p>Completed surface (blue) with the prior (red).</p>");
+        html.push_str(&png_tag(&run_dir.join("mesh.png"), "completed mesh and prior")?);
+    }
+    Ok(())
+}
+
+/// Scores of the completed surface and of the prior alone, when the case has ground truth.
+fn metrics(html: &mut String, summary: &Value) {
+    html.push_str("<h2>Metrics</h2>");
+    if summary["metrics"].is_null() {
+        html.push_str("<p>No ground truth in the case: no metrics.</p>");
+        return;
+    }
+    html.push_str("<table><tr><th>surface</th><th>region</th><th>CD mean (mm)</th><th>CD sum (mm)</th><th>HD95 (mm)</th><th>HD (mm)</th></tr>");
+    metrics_rows(html, "completed", &summary["metrics"]);
+    if !summary["prior_metrics"].is_null() {
+        metrics_rows(html, "prior alone", &summary["prior_metrics"]);
+    }
+    html.push_str("</table><p>Definitions: docs/METRICS.md (CD sum = the paper's convention); ∞: the surface has no point in that region.</p>");
+}
+
+/// Learned pose corrections (`poses.json`) and, for a synthetic case, their errors.
+fn poses(html: &mut String, run_dir: &Path, summary: &Value) -> Result<()> {
+    let poses_path = run_dir.join("poses.json");
+    if !poses_path.exists() {
+        return Ok(());
+    }
+    let poses: Value = serde_json::from_slice(&read_file(&poses_path)?)
+        .map_err(|e| CoreError::format(&poses_path, format!("invalid poses: {e}")))?;
+    html.push_str("<h2>Pose refinement</h2><table><tr><th>view</th><th>rotation (°, axis-angle)</th><th>translation (mm)</th></tr>");
+    for v in poses["views"].as_array().into_iter().flatten() {
+        let vec3 = |x: &Value| x.as_array().map_or("–".into(), |a| a.iter().map(num).collect::<Vec<_>>().join(", "));
+        let _ = write!(
+            html,
+            "<tr><td>{}</td><td>{}</td><td>{}</td></tr>",
+            escape(v["name"].as_str().unwrap_or("?")),
+            vec3(&v["rotation_deg"]),
+            vec3(&v["translation_mm"])
+        );
+    }
+    html.push_str("</table>");
+    if let Some(errors) = summary["pose_errors"].as_array() {
+        html.push_str("<p>Against the known true poses:</p><table><tr><th>view</th><th>reprojection before (px)</th><th>after (px)</th><th>rotation error (°)</th><th>translation error (mm)</th></tr>");
+        for e in errors {
+            let _ = write!(
+                html,
+                "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+                e["view"],
+                num(&e["reprojection_before_px"]),
+                num(&e["reprojection_after_px"]),
+                num(&e["rotation_error_deg"]),
+                num(&e["translation_error_mm"])
+            );
+        }
+        html.push_str("</table>");
+    }
+    Ok(())
 }

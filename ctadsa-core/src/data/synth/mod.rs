@@ -5,7 +5,7 @@ pub mod presets;
 
 use std::path::{Path, PathBuf};
 
-use ctadsa_render::ConeBeamView;
+use ctadsa_render::{ConeBeamView, TigreGeometry};
 use glam::{DMat3, DVec3};
 use serde::{Deserialize, Serialize};
 
@@ -317,14 +317,9 @@ fn occupancy_volume_mm3(v: &Volume<f32>) -> f64 {
     v.data.iter().map(|&x| x as f64).sum::<f64>() * h[0] * h[1] * h[2]
 }
 
-/// Writes a synthetic case into `out`, reporting each step to `progress`.
-pub fn synthesize(cfg: &SynthConfig, out: &Path, progress: &mut dyn FnMut(&str)) -> Result<SynthSummary> {
-    if cfg.priors.is_empty() {
-        return Err(CoreError::invalid("at least one prior threshold is needed"));
-    }
-    cfg.validate()?;
-    progress("anatomy");
-    let r = match &cfg.anatomy {
+/// The anatomy rasterised: the complete occupancy and one prior per threshold.
+fn rasterise_anatomy(cfg: &SynthConfig) -> Result<Rasterised> {
+    match &cfg.anatomy {
         Anatomy::Procedural(p) => from_tree(
             p.generate()?,
             cfg,
@@ -335,17 +330,20 @@ pub fn synthesize(cfg: &SynthConfig, out: &Path, progress: &mut dyn FnMut(&str))
                 env!("CARGO_PKG_VERSION")
             ),
             Vec::new(),
-        )?,
+        ),
         Anatomy::Swc { path } => {
             let f = read_swc(path)?;
             let warnings = f.warnings.iter().map(|w| format!("{}:{}: {}", path.display(), w.line, w.problem)).collect();
-            from_tree(f.tree, cfg, format!("SWC tree {}", path.display()), warnings)?
+            from_tree(f.tree, cfg, format!("SWC tree {}", path.display()), warnings)
         }
-        Anatomy::Labels { path, labels, prior_drop_labels } => from_labels(path, labels, prior_drop_labels, cfg)?,
-    };
-    let grid = r.complete.grid;
+        Anatomy::Labels { path, labels, prior_drop_labels } => from_labels(path, labels, prior_drop_labels, cfg),
+    }
+}
 
-    progress("meshes");
+/// The ground truth (complete mesh, occupancy, tree) and every prior with its missing vessels,
+/// written under `out`.
+fn write_truth_and_priors(r: &Rasterised, out: &Path) -> Result<WrittenPriors> {
+    let grid = r.complete.grid;
     let complete_mesh = extract_isosurface(&r.complete, 0.5);
     if complete_mesh.is_empty() {
         let thickest = r.tree.as_ref().map_or(String::new(), |t| {
@@ -381,11 +379,33 @@ pub fn synthesize(cfg: &SynthConfig, out: &Path, progress: &mut dyn FnMut(&str))
             first_meshes = Some((prior_mesh, missing_mesh));
         }
     }
-    let (prior_mesh, missing_mesh) = first_meshes.expect("at least one prior");
+    let (prior_mesh, missing_mesh) =
+        first_meshes.ok_or_else(|| CoreError::invalid("at least one prior threshold is needed"))?;
+    Ok(WrittenPriors { entries: prior_entries, prior_mesh, missing_mesh })
+}
 
-    progress("projections");
+/// The priors written by [`write_truth_and_priors`].
+struct WrittenPriors {
+    /// (diameter threshold in mm, folder tag under `priors/`) of each prior.
+    entries: Vec<(f64, String)>,
+    /// The first prior's mesh and its missing vessels.
+    prior_mesh: TriMesh,
+    missing_mesh: TriMesh,
+}
+
+/// The simulated acquisition: view names and geometries, the views as imaged (with the pose
+/// errors when set), the images (noise applied, normalised when asked) and the pose errors.
+struct Acquisition {
+    names: Vec<String>,
+    geometries: Vec<TigreGeometry>,
+    images: Vec<Vec<f32>>,
+    normalised_by: Option<f64>,
+    view_corrections: Option<Vec<PoseCorrection>>,
+}
+
+fn acquire(cfg: &SynthConfig, complete: &Volume<f32>) -> Result<Acquisition> {
     let angles = view_preset(&cfg.views)?;
-    let geoms: Vec<_> = angles
+    let geometries: Vec<TigreGeometry> = angles
         .iter()
         .map(|(_, p, s)| {
             let mut g = cfg.geometry.geometry(*p, *s, 1);
@@ -398,8 +418,9 @@ pub fn synthesize(cfg: &SynthConfig, out: &Path, progress: &mut dyn FnMut(&str))
             g
         })
         .collect();
-    let views: Vec<ConeBeamView> = geoms.iter().map(ConeBeamView::from_tigre).collect::<std::result::Result<_, _>>()?;
-    let contrast = r.complete.map(|v| v * cfg.contrast_per_mm as f32);
+    let views: Vec<ConeBeamView> =
+        geometries.iter().map(ConeBeamView::from_tigre).collect::<std::result::Result<_, _>>()?;
+    let contrast = complete.map(|v| v * cfg.contrast_per_mm as f32);
     let view_corrections: Option<Vec<PoseCorrection>> = cfg.pose_error.map(|e| {
         let mut rng = ChaCha8Rng::seed_from_u64(e.seed ^ 0x9053);
         (0..views.len())
@@ -407,7 +428,7 @@ pub fn synthesize(cfg: &SynthConfig, out: &Path, progress: &mut dyn FnMut(&str))
             .collect()
     });
     let imaged: Vec<ConeBeamView> = match &view_corrections {
-        None => views.clone(),
+        None => views,
         Some(c) => views.iter().zip(c).map(|(v, c)| corrected_view(v, c)).collect::<std::result::Result<_, _>>()?,
     };
     let mut images = project_volume(&contrast, &imaged);
@@ -419,12 +440,16 @@ pub fn synthesize(cfg: &SynthConfig, out: &Path, progress: &mut dyn FnMut(&str))
     if let Some(m) = normalised_by {
         images.iter_mut().for_each(|img| img.iter_mut().for_each(|v| *v /= m as f32));
     }
+    let names = angles.into_iter().map(|(name, _, _)| name).collect();
+    Ok(Acquisition { names, geometries, images, normalised_by, view_corrections })
+}
 
-    progress("files");
+/// Writes every view (TIFF, 16-bit PNG, preview) and the pictures; returns the case's entries.
+fn write_views(out: &Path, acq: Acquisition, prior_mesh: &TriMesh, missing_mesh: &TriMesh) -> Result<Vec<ViewEntry>> {
     let mut entries = Vec::new();
-    let display_max = images.iter().flat_map(|i| i.iter()).copied().fold(0.0f32, f32::max);
+    let display_max = acq.images.iter().flat_map(|i| i.iter()).copied().fold(0.0f32, f32::max);
     let mut strip: Vec<Image> = Vec::new();
-    for (((name, _, _), geom), data) in angles.iter().zip(&geoms).zip(images) {
+    for ((name, geom), data) in acq.names.iter().zip(&acq.geometries).zip(acq.images) {
         let img = Image { width: geom.detector_px[0], height: geom.detector_px[1], data };
         write_tiff_f32(&out.join(format!("views/{name}.tiff")), &img)?;
         let scale = write_png16(&out.join(format!("views/{name}.png")), &img)?;
@@ -441,9 +466,28 @@ pub fn synthesize(cfg: &SynthConfig, out: &Path, progress: &mut dyn FnMut(&str))
     write_view_strip(&out.join("pictures/views.png"), &strip, display_max)?;
     write_mesh_png(
         &out.join("pictures/meshes.png"),
-        &[Coloured { mesh: &prior_mesh, rgb: [200, 60, 50] }, Coloured { mesh: &missing_mesh, rgb: [50, 110, 220] }],
+        &[Coloured { mesh: prior_mesh, rgb: [200, 60, 50] }, Coloured { mesh: missing_mesh, rgb: [50, 110, 220] }],
         &standard_views(360),
     )?;
+    Ok(entries)
+}
+
+/// Writes a synthetic case into `out`, reporting each step to `progress`.
+pub fn synthesize(cfg: &SynthConfig, out: &Path, progress: &mut dyn FnMut(&str)) -> Result<SynthSummary> {
+    if cfg.priors.is_empty() {
+        return Err(CoreError::invalid("at least one prior threshold is needed"));
+    }
+    cfg.validate()?;
+    progress("anatomy");
+    let r = rasterise_anatomy(cfg)?;
+    let grid = r.complete.grid;
+    progress("meshes");
+    let WrittenPriors { entries: prior_entries, prior_mesh, missing_mesh } = write_truth_and_priors(&r, out)?;
+    progress("projections");
+    let acq = acquire(cfg, &r.complete)?;
+    let (normalised_by, view_corrections, n_views) = (acq.normalised_by, acq.view_corrections.clone(), acq.names.len());
+    progress("files");
+    let entries = write_views(out, acq, &prior_mesh, &missing_mesh)?;
     let (d0, tag0) = &prior_entries[0];
     let bounds = grid.bounds();
     let case = CaseFile {
@@ -494,7 +538,7 @@ pub fn synthesize(cfg: &SynthConfig, out: &Path, progress: &mut dyn FnMut(&str))
         dir: out.to_path_buf(),
         voxels: grid.dims,
         voxel_mm: grid.spacing_mm,
-        views: views.len(),
+        views: n_views,
         prior_thresholds_mm: prior_entries.iter().map(|p| p.0).collect(),
         complete_volume_mm3: occupancy_volume_mm3(&r.complete),
         prior_volume_mm3: occupancy_volume_mm3(&r.priors[0].1),
