@@ -270,6 +270,9 @@ pub fn export_dicom(args: ExportDicomArgs) -> Result<()> {
         if mirror {
             spec.patient_orientation = Some(["L".into(), "F".into()]);
         }
+        // One study per case, one series per view.
+        spec.study_key = case.file.name.clone();
+        spec.series_number = i as u32 + 1;
         let path = args.out.join(format!("{}.dcm", entry.name));
         write_xa_run(&path, &spec)?;
         println!(

@@ -1,5 +1,5 @@
-//! The clinical commands end to end through the binary: synth → export-dicom → import-dsa gives a
-//! loadable case with the same views; `prior` makes a mesh from the TopCoW labels; bad paths fail
+//! The clinical commands end to end through the binary: synth → export-dicom (files that
+//! dciodvfy accepts and dcmdump reads) → import-dsa gives a loadable case with the same views; `prior` makes a mesh from the TopCoW labels; bad paths fail
 //! with a message that names the file.
 
 use std::path::{Path, PathBuf};
@@ -25,11 +25,44 @@ fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
 
+/// `dciodvfy` (dicom3tools) reports no error and `dcmdump` (dcmtk) reads the file. Without the
+/// tools the check prints why and passes, unless `CTADSA_REQUIRE_DICOM_TOOLS=1` (CI).
+fn validate_dicom(file: &Path) {
+    let required = std::env::var("CTADSA_REQUIRE_DICOM_TOOLS").is_ok_and(|v| v == "1");
+    for tool in ["dciodvfy", "dcmdump"] {
+        let Ok(out) = Command::new(tool).arg(file).output() else {
+            assert!(!required, "CTADSA_REQUIRE_DICOM_TOOLS=1 but `{tool}` is not on the PATH");
+            eprintln!("SKIPPED: `{tool}` check of {} not run: `{tool}` is not on the PATH", file.display());
+            continue;
+        };
+        let text = String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
+        if tool == "dciodvfy" {
+            let errors: Vec<&str> = text.lines().filter(|l| l.starts_with("Error")).collect();
+            assert!(
+                errors.is_empty(),
+                "dciodvfy {}: {} error(s):\n{}",
+                file.display(),
+                errors.len(),
+                errors.join("\n")
+            );
+        } else {
+            assert!(
+                out.status.success() && text.contains("PositionerPrimaryAngle"),
+                "dcmdump {}:\n{text}",
+                file.display()
+            );
+        }
+    }
+}
+
 #[test]
 fn dicom_round_trip_through_the_commands() {
     let (src, dicom, case) = (tmp("src"), tmp("dicom"), tmp("case"));
     ok(&["synth", "--out", s(&src), "--terminals", "16", "--detector-px", "96", "--binning", "2", "--voxel-mm", "0.6"]);
     ok(&["export-dicom", "--case", s(&src), "--out", s(&dicom), "--mirror-first"]);
+    for view in ["ap", "lat", "oblique"] {
+        validate_dicom(&dicom.join(format!("{view}.dcm")));
+    }
     let prior = src.join("priors/d1p50mm/prior.obj");
     let log = ok(&[
         "import-dsa",

@@ -50,5 +50,7 @@ pub fn simulated_run(line_integral: &Image, geometry: &TigreGeometry, kappa: f32
         mask_frame_numbers: vec![1],
         intensity_relationship: Some("LIN".into()),
         patient_orientation: None,
+        study_key: "simulated".into(),
+        series_number: 1,
     }
 }

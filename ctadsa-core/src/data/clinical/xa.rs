@@ -84,7 +84,43 @@ pub fn read_xa_run(path: &Path) -> Result<XaRun> {
         return Err(CoreError::io(path, std::io::Error::new(std::io::ErrorKind::NotFound, "no such file")));
     }
     let obj = open_file(path).map_err(|e| CoreError::format(path, format!("not a readable DICOM file: {e}")))?;
-    let modality = element_str(&obj, tags::MODALITY).unwrap_or_default();
+    check_modality_and_syntax(&obj, path)?;
+    let layout = PixelLayout::read(&obj, path)?;
+    let frames = read_frames(&obj, path, &layout)?;
+    let geometry = read_geometry(&obj, path)?;
+    let mut mask_frames = Vec::new();
+    if let Ok(Some(seq)) = obj.element_opt(tags::MASK_SUBTRACTION_SEQUENCE)
+        && let Some(items) = seq.items()
+    {
+        for item in items {
+            if let Some(e) = item.get(tags::MASK_FRAME_NUMBERS)
+                && let Ok(v) = e.to_multi_int::<i64>()
+            {
+                let n = layout.frames;
+                mask_frames.extend(v.into_iter().filter(|&f| f >= 1 && f <= n).map(|f| (f - 1) as usize));
+            }
+        }
+    }
+    let patient_orientation = obj
+        .element_opt(tags::PATIENT_ORIENTATION)
+        .ok()
+        .flatten()
+        .and_then(|e| e.to_multi_str().ok().map(|v| v.iter().map(|s| s.trim().to_string()).collect()));
+    Ok(XaRun {
+        path: path.to_path_buf(),
+        columns: layout.columns as u32,
+        rows: layout.rows as u32,
+        frames,
+        geometry,
+        mask_frames,
+        intensity_relationship: element_str(&obj, tags::PIXEL_INTENSITY_RELATIONSHIP),
+        patient_orientation,
+    })
+}
+
+/// XA or RF, uncompressed little endian, with every tag the geometry and pixels need.
+fn check_modality_and_syntax(obj: &DefaultDicomObject, path: &Path) -> Result<()> {
+    let modality = element_str(obj, tags::MODALITY).unwrap_or_default();
     if modality != "XA" && modality != "RF" {
         return Err(CoreError::format(
             path,
@@ -118,47 +154,70 @@ pub fn read_xa_run(path: &Path) -> Result<XaRun> {
     if !missing.is_empty() {
         return Err(CoreError::format(path, format!("missing DICOM tag(s): {}", missing.join(", "))));
     }
-    let need =
-        |v: Option<i64>, tag: Tag| v.ok_or_else(|| CoreError::format(path, format!("missing {}", tag_name(tag))));
-    let rows = need(element_int(&obj, path, tags::ROWS)?, tags::ROWS)?;
-    let columns = need(element_int(&obj, path, tags::COLUMNS)?, tags::COLUMNS)?;
-    let bits = need(element_int(&obj, path, tags::BITS_ALLOCATED)?, tags::BITS_ALLOCATED)?;
-    let samples = element_int(&obj, path, tags::SAMPLES_PER_PIXEL)?.unwrap_or(1);
-    let signed = element_int(&obj, path, tags::PIXEL_REPRESENTATION)?.unwrap_or(0) == 1;
-    let n_frames = match element_str(&obj, tags::NUMBER_OF_FRAMES) {
-        None => 1,
-        Some(s) => {
-            s.parse::<i64>().map_err(|_| CoreError::format(path, format!("Number of Frames (0028,0008) is `{s}`")))?
+    Ok(())
+}
+
+/// Image size, frame count and sample format, range-checked before any pixel is read.
+struct PixelLayout {
+    rows: i64,
+    columns: i64,
+    frames: i64,
+    bytes_per_sample: usize,
+    signed: bool,
+}
+
+impl PixelLayout {
+    fn read(obj: &DefaultDicomObject, path: &Path) -> Result<Self> {
+        let need =
+            |v: Option<i64>, tag: Tag| v.ok_or_else(|| CoreError::format(path, format!("missing {}", tag_name(tag))));
+        let rows = need(element_int(obj, path, tags::ROWS)?, tags::ROWS)?;
+        let columns = need(element_int(obj, path, tags::COLUMNS)?, tags::COLUMNS)?;
+        let bits = need(element_int(obj, path, tags::BITS_ALLOCATED)?, tags::BITS_ALLOCATED)?;
+        let samples = element_int(obj, path, tags::SAMPLES_PER_PIXEL)?.unwrap_or(1);
+        let signed = element_int(obj, path, tags::PIXEL_REPRESENTATION)?.unwrap_or(0) == 1;
+        let frames = match element_str(obj, tags::NUMBER_OF_FRAMES) {
+            None => 1,
+            Some(s) => s
+                .parse::<i64>()
+                .map_err(|_| CoreError::format(path, format!("Number of Frames (0028,0008) is `{s}`")))?,
+        };
+        if rows < 1 || columns < 1 || frames < 1 {
+            return Err(CoreError::format(
+                path,
+                format!("degenerate image: {columns} × {rows} pixels, {frames} frames"),
+            ));
         }
-    };
-    if rows < 1 || columns < 1 || n_frames < 1 {
-        return Err(CoreError::format(path, format!("degenerate image: {columns} × {rows} pixels, {n_frames} frames")));
+        if rows > 65_535 || columns > 65_535 {
+            return Err(CoreError::format(
+                path,
+                format!("Rows (0028,0010) × Columns (0028,0011) = {rows} × {columns}: each must be at most 65535"),
+            ));
+        }
+        if frames > MAX_FRAMES {
+            return Err(CoreError::format(
+                path,
+                format!("Number of Frames (0028,0008) is {frames}; at most {MAX_FRAMES} are read"),
+            ));
+        }
+        if samples != 1 {
+            return Err(CoreError::format(path, format!("{samples} samples per pixel; DSA runs are greyscale (1)")));
+        }
+        if bits != 8 && bits != 16 {
+            return Err(CoreError::format(path, format!("Bits Allocated is {bits}; 8 or 16 are supported")));
+        }
+        Ok(Self { rows, columns, frames, bytes_per_sample: (bits / 8) as usize, signed })
     }
-    if rows > 65_535 || columns > 65_535 {
-        return Err(CoreError::format(
-            path,
-            format!("Rows (0028,0010) × Columns (0028,0011) = {rows} × {columns}: each must be at most 65535"),
-        ));
-    }
-    if n_frames > MAX_FRAMES {
-        return Err(CoreError::format(
-            path,
-            format!("Number of Frames (0028,0008) is {n_frames}; at most {MAX_FRAMES} are read"),
-        ));
-    }
-    if samples != 1 {
-        return Err(CoreError::format(path, format!("{samples} samples per pixel; DSA runs are greyscale (1)")));
-    }
-    if bits != 8 && bits != 16 {
-        return Err(CoreError::format(path, format!("Bits Allocated is {bits}; 8 or 16 are supported")));
-    }
+}
+
+/// Every frame's pixels, rescaled by (0028,1053)/(0028,1052).
+fn read_frames(obj: &DefaultDicomObject, path: &Path, layout: &PixelLayout) -> Result<Vec<Vec<f32>>> {
     let pixels = obj
         .element(tags::PIXEL_DATA)
         .map_err(|e| CoreError::format(path, format!("Pixel Data: {e}")))?
         .to_bytes()
         .map_err(|e| CoreError::format(path, format!("Pixel Data is not native (encapsulated?): {e}")))?;
+    let (rows, columns, n_frames, bytes_per) = (layout.rows, layout.columns, layout.frames, layout.bytes_per_sample);
     let per_frame = (rows * columns) as usize;
-    let bytes_per = (bits / 8) as usize;
     // Bounded above: 65535² × 10⁴ × 2 bytes fits in u64 and in usize on 64-bit targets.
     let needed = (per_frame as u64).saturating_mul(n_frames as u64).saturating_mul(bytes_per as u64);
     if (pixels.len() as u64) < needed {
@@ -170,10 +229,10 @@ pub fn read_xa_run(path: &Path) -> Result<XaRun> {
             ),
         ));
     }
-    let slope = element_f64(&obj, path, tags::RESCALE_SLOPE)?.unwrap_or(1.0);
-    let intercept = element_f64(&obj, path, tags::RESCALE_INTERCEPT)?.unwrap_or(0.0);
+    let slope = element_f64(obj, path, tags::RESCALE_SLOPE)?.unwrap_or(1.0);
+    let intercept = element_f64(obj, path, tags::RESCALE_INTERCEPT)?.unwrap_or(0.0);
     let value = |i: usize| -> f32 {
-        let raw = match (bytes_per, signed) {
+        let raw = match (bytes_per, layout.signed) {
             (1, false) => pixels[i] as f64,
             (1, true) => pixels[i] as i8 as f64,
             (_, false) => u16::from_le_bytes([pixels[2 * i], pixels[2 * i + 1]]) as f64,
@@ -181,8 +240,11 @@ pub fn read_xa_run(path: &Path) -> Result<XaRun> {
         };
         (raw * slope + intercept) as f32
     };
-    let frames: Vec<Vec<f32>> =
-        (0..n_frames as usize).map(|f| (0..per_frame).map(|p| value(f * per_frame + p)).collect()).collect();
+    Ok((0..n_frames as usize).map(|f| (0..per_frame).map(|p| value(f * per_frame + p)).collect()).collect())
+}
+
+/// The C-arm geometry: distances, angles and detector pixel spacing, range-checked.
+fn read_geometry(obj: &DefaultDicomObject, path: &Path) -> Result<XaGeometry> {
     let spacing = obj
         .element(tags::IMAGER_PIXEL_SPACING)
         .map_err(|e| CoreError::format(path, e.to_string()))?
@@ -195,7 +257,7 @@ pub fn read_xa_run(path: &Path) -> Result<XaRun> {
         ));
     }
     let get = |t: Tag| -> Result<f64> {
-        element_f64(&obj, path, t)?.ok_or_else(|| CoreError::format(path, format!("missing {}", tag_name(t))))
+        element_f64(obj, path, t)?.ok_or_else(|| CoreError::format(path, format!("missing {}", tag_name(t))))
     };
     let geometry = XaGeometry {
         dsd_mm: get(tags::DISTANCE_SOURCE_TO_DETECTOR)?,
@@ -223,33 +285,7 @@ pub fn read_xa_run(path: &Path) -> Result<XaRun> {
             ),
         ));
     }
-    let mut mask_frames = Vec::new();
-    if let Ok(Some(seq)) = obj.element_opt(tags::MASK_SUBTRACTION_SEQUENCE)
-        && let Some(items) = seq.items()
-    {
-        for item in items {
-            if let Some(e) = item.get(tags::MASK_FRAME_NUMBERS)
-                && let Ok(v) = e.to_multi_int::<i64>()
-            {
-                mask_frames.extend(v.into_iter().filter(|&f| f >= 1 && f <= n_frames).map(|f| (f - 1) as usize));
-            }
-        }
-    }
-    let patient_orientation = obj
-        .element_opt(tags::PATIENT_ORIENTATION)
-        .ok()
-        .flatten()
-        .and_then(|e| e.to_multi_str().ok().map(|v| v.iter().map(|s| s.trim().to_string()).collect()));
-    Ok(XaRun {
-        path: path.to_path_buf(),
-        columns: columns as u32,
-        rows: rows as u32,
-        frames,
-        geometry,
-        mask_frames,
-        intensity_relationship: element_str(&obj, tags::PIXEL_INTENSITY_RELATIONSHIP),
-        patient_orientation,
-    })
+    Ok(geometry)
 }
 
 /// What [`write_xa_run`] writes; `None` leaves a tag out (to test errors).
@@ -271,16 +307,75 @@ pub struct XaRunSpec {
     pub intensity_relationship: Option<String>,
     /// Patient Orientation (0020,0020): row direction, column direction (e.g. `["L", "F"]`).
     pub patient_orientation: Option<[String; 2]>,
+    /// Names the study: runs written with the same key share a Study Instance UID (and Patient
+    /// ID); each run is its own series.
+    pub study_key: String,
+    /// Series Number (0020,0011); also the run's part of its UIDs.
+    pub series_number: u32,
+}
+
+/// A DICOM UID under the `2.25` root (ISO/IEC 9834-8: a 128-bit number in decimal), derived
+/// from `parts` with FNV-1a (128 bit): the same inputs give the same UID, so exports are
+/// reproducible.
+pub fn derived_uid(parts: &[&[u8]]) -> String {
+    let mut h: u128 = 0x6c62_272e_07bb_0142_62b8_2175_6295_c58d;
+    for part in parts {
+        for &b in part.iter().chain(&[0xff]) {
+            h ^= b as u128;
+            h = h.wrapping_mul(0x0000_0000_0100_0000_0000_0000_0000_013b);
+        }
+    }
+    format!("2.25.{h}")
 }
 
 /// Writes a multi-frame XA file (explicit VR little endian, 16-bit unsigned) — for tests and for
 /// exporting synthetic runs to tools that read DICOM.
 pub fn write_xa_run(path: &Path, spec: &XaRunSpec) -> Result<()> {
     let ds = |v: f64| PrimitiveValue::from(format!("{v}"));
+    let pixel_bytes: Vec<u8> = spec.frames.iter().flatten().flat_map(|v| v.to_le_bytes()).collect();
+    let (key, series) = (spec.study_key.as_bytes(), spec.series_number.to_le_bytes());
+    let study_uid = derived_uid(&[b"study", key]);
+    let series_uid = derived_uid(&[b"series", key, &series]);
+    let instance_uid = derived_uid(&[b"instance", key, &series, &pixel_bytes]);
+    let empty = |tag: Tag, vr: VR| DataElement::new(tag, vr, PrimitiveValue::Empty);
     let mut obj = InMemDicomObject::from_element_iter([
         DataElement::new(tags::SOP_CLASS_UID, VR::UI, uids::X_RAY_ANGIOGRAPHIC_IMAGE_STORAGE),
-        DataElement::new(tags::SOP_INSTANCE_UID, VR::UI, "2.25.311939489201882017281371526110112"),
+        DataElement::new(tags::SOP_INSTANCE_UID, VR::UI, instance_uid.as_str()),
+        // Simulated from a case's line integrals, not acquired: derived, secondary.
+        DataElement::new(tags::IMAGE_TYPE, VR::CS, "DERIVED\\SECONDARY\\SINGLE PLANE"),
         DataElement::new(tags::MODALITY, VR::CS, spec.modality.as_str()),
+        DataElement::new(tags::MANUFACTURER, VR::LO, "ctadsa (simulated run)"),
+        // Patient and study: the case, anonymous by construction.
+        DataElement::new(tags::PATIENT_NAME, VR::PN, "SIMULATED^PHANTOM"),
+        DataElement::new(tags::PATIENT_ID, VR::LO, spec.study_key.as_str()),
+        empty(tags::PATIENT_BIRTH_DATE, VR::DA),
+        empty(tags::PATIENT_SEX, VR::CS),
+        DataElement::new(tags::STUDY_INSTANCE_UID, VR::UI, study_uid.as_str()),
+        empty(tags::STUDY_DATE, VR::DA),
+        empty(tags::STUDY_TIME, VR::TM),
+        empty(tags::REFERRING_PHYSICIAN_NAME, VR::PN),
+        DataElement::new(tags::STUDY_ID, VR::SH, "1"),
+        empty(tags::ACCESSION_NUMBER, VR::SH),
+        DataElement::new(tags::SERIES_INSTANCE_UID, VR::UI, series_uid.as_str()),
+        DataElement::new(tags::SERIES_NUMBER, VR::IS, format!("{}", spec.series_number).as_str()),
+        // Unknown (present, empty): dciodvfy requires it for XA.
+        empty(tags::LATERALITY, VR::CS),
+        DataElement::new(tags::INSTANCE_NUMBER, VR::IS, "1"),
+        // X-ray acquisition: exposure values unknown (type 2: present, empty).
+        empty(tags::KVP, VR::DS),
+        DataElement::new(tags::RADIATION_SETTING, VR::CS, "GR"),
+        empty(tags::EXPOSURE_TIME, VR::IS),
+        empty(tags::X_RAY_TUBE_CURRENT, VR::IS),
+        empty(tags::EXPOSURE, VR::IS),
+        DataElement::new(tags::POSITIONER_MOTION, VR::CS, "STATIC"),
+        // Multi-frame: frames 100 ms apart.
+        DataElement::new(tags::FRAME_TIME, VR::DS, "100"),
+        DataElement::new(
+            tags::FRAME_INCREMENT_POINTER,
+            VR::AT,
+            PrimitiveValue::Tags(std::iter::once(tags::FRAME_TIME).collect()),
+        ),
+        DataElement::new(tags::RECOMMENDED_VIEWING_MODE, VR::CS, "SUB"),
         DataElement::new(tags::SAMPLES_PER_PIXEL, VR::US, PrimitiveValue::from(1u16)),
         DataElement::new(tags::PHOTOMETRIC_INTERPRETATION, VR::CS, "MONOCHROME2"),
         DataElement::new(tags::NUMBER_OF_FRAMES, VR::IS, format!("{}", spec.frames.len()).as_str()),
@@ -303,9 +398,12 @@ pub fn write_xa_run(path: &Path, spec: &XaRunSpec) -> Result<()> {
     if let Some([c, r]) = spec.pixel_mm {
         obj.put(DataElement::new(tags::IMAGER_PIXEL_SPACING, VR::DS, PrimitiveValue::from(format!("{r}\\{c}"))));
     }
-    if let Some([a, b]) = &spec.patient_orientation {
-        obj.put(DataElement::new(tags::PATIENT_ORIENTATION, VR::CS, PrimitiveValue::from(format!("{a}\\{b}"))));
-    }
+    match &spec.patient_orientation {
+        Some([a, b]) => {
+            obj.put(DataElement::new(tags::PATIENT_ORIENTATION, VR::CS, PrimitiveValue::from(format!("{a}\\{b}"))))
+        }
+        None => obj.put(empty(tags::PATIENT_ORIENTATION, VR::CS)),
+    };
     if let Some(rel) = &spec.intensity_relationship {
         obj.put(DataElement::new(tags::PIXEL_INTENSITY_RELATIONSHIP, VR::CS, rel.as_str()));
     }
@@ -324,8 +422,7 @@ pub fn write_xa_run(path: &Path, spec: &XaRunSpec) -> Result<()> {
             dicom_core::value::DataSetSequence::from(vec![item]),
         ));
     }
-    let bytes: Vec<u8> = spec.frames.iter().flatten().flat_map(|v| v.to_le_bytes()).collect();
-    obj.put(DataElement::new(tags::PIXEL_DATA, VR::OW, PrimitiveValue::from(bytes)));
+    obj.put(DataElement::new(tags::PIXEL_DATA, VR::OW, PrimitiveValue::from(pixel_bytes)));
     let file = obj
         .with_meta(FileMetaTableBuilder::new().transfer_syntax(uids::EXPLICIT_VR_LITTLE_ENDIAN))
         .map_err(|e| CoreError::format(path, format!("cannot build DICOM meta: {e}")))?;
