@@ -25,6 +25,12 @@ impl ScaleBounds {
         Self { min_mm: (min_voxels * h_mm) as f32, max_mm: (max_voxels * h_mm) as f32 }
     }
 
+    /// The scale (mm) of raw parameter `raw`, on the host (the tensor version is
+    /// [`GaussianModel::scales`]).
+    pub fn scale_mm(&self, raw: f64) -> f64 {
+        (self.max_mm - self.min_mm) as f64 / (1.0 + (-raw).exp()) + self.min_mm as f64
+    }
+
     /// The raw parameter giving scale `s` (clamped inside the bounds).
     pub fn inverse(&self, s: f32) -> f32 {
         let t = ((s - self.min_mm) / (self.max_mm - self.min_mm)).clamp(1e-4, 1.0 - 1e-4);
