@@ -90,7 +90,7 @@ pub fn plan(
     let t = ((iteration.saturating_sub(cfg.from)) as f64 / span).clamp(0.0, 1.0);
     let [a, b] = cfg.clone_scale_voxels;
     let pd = a * (b / a).powf(t) * voxel_mm;
-    let scale = |raw: f32| bounds.scale_mm(raw as f64) as f32;
+    let scale = |raw: f32| bounds.scale_mm(raw);
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ (iteration as u64).wrapping_mul(0x9E37_79B9));
     let mut out = DensifyPlan::default();
     // Candidates for growth, strongest first, so that a cap keeps the most useful ones.

@@ -156,7 +156,7 @@ pub fn estimate_initial_density(views: &ViewSet, images: &[Image], init: &Gaussi
         .raw_scales
         .chunks_exact(3)
         .map(|r| {
-            let s: f64 = r.iter().map(|&x| bounds.scale_mm(x as f64)).product();
+            let s: f64 = r.iter().map(|&x| bounds.scale_mm_f64(x as f64)).product();
             (2.0 * std::f64::consts::PI).powf(1.5) * s
         })
         .sum();

@@ -25,9 +25,14 @@ impl ScaleBounds {
         Self { min_mm: (min_voxels * h_mm) as f32, max_mm: (max_voxels * h_mm) as f32 }
     }
 
-    /// The scale (mm) of raw parameter `raw`, on the host (the tensor version is
+    /// The scale (mm) of raw parameter `raw`, on the host in f32 (the tensor version is
     /// [`GaussianModel::scales`]).
-    pub fn scale_mm(&self, raw: f64) -> f64 {
+    pub fn scale_mm(&self, raw: f32) -> f32 {
+        (self.max_mm - self.min_mm) * (1.0 / (1.0 + (-raw).exp())) + self.min_mm
+    }
+
+    /// [`Self::scale_mm`] evaluated in f64.
+    pub fn scale_mm_f64(&self, raw: f64) -> f64 {
         (self.max_mm - self.min_mm) as f64 / (1.0 + (-raw).exp()) + self.min_mm as f64
     }
 
