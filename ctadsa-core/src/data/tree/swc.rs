@@ -39,17 +39,50 @@ pub fn read_swc(path: &Path) -> Result<SwcFile> {
     parse_swc(&text).map_err(|problem| CoreError::format(path, problem))
 }
 
-/// Parses SWC text (see [`read_swc`]); the error string describes why nothing was usable.
-pub fn parse_swc(text: &str) -> std::result::Result<SwcFile, String> {
-    struct Row {
-        id: i64,
-        kind: i32,
-        pos: DVec3,
-        radius: f64,
-        parent: i64,
-        line: usize,
+/// One parsed SWC row.
+struct Row {
+    id: i64,
+    kind: i32,
+    pos: DVec3,
+    radius: f64,
+    parent: i64,
+    line: usize,
+}
+
+/// The seven columns of a row, range-checked.
+fn parse_row(cols: &[&str], line: usize) -> std::result::Result<Row, String> {
+    let int = |s: &str, what: &str| {
+        s.parse::<f64>()
+            .ok()
+            .filter(|v| v.fract() == 0.0 && v.is_finite())
+            .map(|v| v as i64)
+            .ok_or_else(|| format!("{what} `{s}` is not an integer"))
+    };
+    let num = |s: &str, what: &str| {
+        s.parse::<f64>().ok().filter(|v| v.is_finite()).ok_or_else(|| format!("{what} `{s}` is not a finite number"))
+    };
+    let radius = num(cols[5], "radius")?;
+    if radius <= 0.0 || radius > MAX_RADIUS_MM {
+        return Err(format!("radius {radius} mm is not in (0, {MAX_RADIUS_MM}] mm"));
     }
-    let mut warnings = Vec::new();
+    for (c, axis) in cols[2..5].iter().zip(["x", "y", "z"]) {
+        let v = num(c, axis)?;
+        if v.abs() > MAX_COORDINATE_MM {
+            return Err(format!("{axis} = {v:.3e} mm is farther than {MAX_COORDINATE_MM} mm from the origin"));
+        }
+    }
+    Ok(Row {
+        id: int(cols[0], "id")?,
+        kind: int(cols[1], "type")? as i32,
+        pos: DVec3::new(num(cols[2], "x")?, num(cols[3], "y")?, num(cols[4], "z")?),
+        radius,
+        parent: int(cols[6], "parent")?,
+        line,
+    })
+}
+
+/// The usable rows (first of each id) and the index of each id among them.
+fn parse_rows(text: &str, warnings: &mut Vec<SwcWarning>) -> (Vec<Row>, HashMap<i64, usize>) {
     let mut rows: Vec<Row> = Vec::new();
     let mut seen: HashMap<i64, usize> = HashMap::new();
     for (k, raw) in text.lines().enumerate() {
@@ -66,40 +99,7 @@ pub fn parse_swc(text: &str) -> std::result::Result<SwcFile, String> {
             });
             continue;
         }
-        let parsed = (|| -> std::result::Result<Row, String> {
-            let int = |s: &str, what: &str| {
-                s.parse::<f64>()
-                    .ok()
-                    .filter(|v| v.fract() == 0.0 && v.is_finite())
-                    .map(|v| v as i64)
-                    .ok_or_else(|| format!("{what} `{s}` is not an integer"))
-            };
-            let num = |s: &str, what: &str| {
-                s.parse::<f64>()
-                    .ok()
-                    .filter(|v| v.is_finite())
-                    .ok_or_else(|| format!("{what} `{s}` is not a finite number"))
-            };
-            let radius = num(cols[5], "radius")?;
-            if radius <= 0.0 || radius > MAX_RADIUS_MM {
-                return Err(format!("radius {radius} mm is not in (0, {MAX_RADIUS_MM}] mm"));
-            }
-            for (c, axis) in cols[2..5].iter().zip(["x", "y", "z"]) {
-                let v = num(c, axis)?;
-                if v.abs() > MAX_COORDINATE_MM {
-                    return Err(format!("{axis} = {v:.3e} mm is farther than {MAX_COORDINATE_MM} mm from the origin"));
-                }
-            }
-            Ok(Row {
-                id: int(cols[0], "id")?,
-                kind: int(cols[1], "type")? as i32,
-                pos: DVec3::new(num(cols[2], "x")?, num(cols[3], "y")?, num(cols[4], "z")?),
-                radius,
-                parent: int(cols[6], "parent")?,
-                line,
-            })
-        })();
-        match parsed {
+        match parse_row(&cols, line) {
             Ok(row) => {
                 if let Some(&first) = seen.get(&row.id) {
                     warnings.push(SwcWarning {
@@ -114,6 +114,43 @@ pub fn parse_swc(text: &str) -> std::result::Result<SwcFile, String> {
             Err(problem) => warnings.push(SwcWarning { line, problem }),
         }
     }
+    (rows, seen)
+}
+
+/// Makes a root of every node that closes a parent cycle (a malformed file can have them),
+/// walking up from every node.
+fn break_cycles(nodes: &mut [TreeNode], rows: &[Row], warnings: &mut Vec<SwcWarning>) {
+    let n = nodes.len();
+    let mut state = vec![0u8; n]; // 0 unvisited, 1 on stack, 2 done
+    for start in 0..n {
+        let mut path = Vec::new();
+        let mut cur = Some(start);
+        while let Some(c) = cur {
+            if state[c] == 2 {
+                break;
+            }
+            if state[c] == 1 {
+                warnings.push(SwcWarning {
+                    line: rows[c].line,
+                    problem: format!("node {} closes a parent cycle; made a root", rows[c].id),
+                });
+                nodes[c].parent = None;
+                break;
+            }
+            state[c] = 1;
+            path.push(c);
+            cur = nodes[c].parent;
+        }
+        for p in path {
+            state[p] = 2;
+        }
+    }
+}
+
+/// Parses SWC text (see [`read_swc`]); the error string describes why nothing was usable.
+pub fn parse_swc(text: &str) -> std::result::Result<SwcFile, String> {
+    let mut warnings = Vec::new();
+    let (rows, seen) = parse_rows(text, &mut warnings);
     if rows.is_empty() {
         return Err("no usable SWC node".into());
     }
@@ -140,32 +177,7 @@ pub fn parse_swc(text: &str) -> std::result::Result<SwcFile, String> {
         };
         nodes.push(TreeNode { id: row.id, kind: row.kind, position_mm: row.pos, radius_mm: row.radius, parent });
     }
-    // Break cycles (a malformed file can have them): walk up from every node.
-    let n = nodes.len();
-    let mut state = vec![0u8; n]; // 0 unvisited, 1 on stack, 2 done
-    for start in 0..n {
-        let mut path = Vec::new();
-        let mut cur = Some(start);
-        while let Some(c) = cur {
-            if state[c] == 2 {
-                break;
-            }
-            if state[c] == 1 {
-                warnings.push(SwcWarning {
-                    line: rows[c].line,
-                    problem: format!("node {} closes a parent cycle; made a root", rows[c].id),
-                });
-                nodes[c].parent = None;
-                break;
-            }
-            state[c] = 1;
-            path.push(c);
-            cur = nodes[c].parent;
-        }
-        for p in path {
-            state[p] = 2;
-        }
-    }
+    break_cycles(&mut nodes, &rows, &mut warnings);
     Ok(SwcFile { tree: VesselTree { nodes }, warnings })
 }
 
