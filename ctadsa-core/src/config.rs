@@ -91,14 +91,19 @@ pub struct InitConfig {
     pub knn: usize,
     /// Residual seeds (intersect modes): a view whose pixel lies in the prior's dilated
     /// projection cannot show residual there, so it supports the voxel when its vessel mask
-    /// does, provided at least half of the views (rounded up) show residual. Off: every view
-    /// must show residual (the vessels behind the prior in any view are never seeded). Off by
-    /// default: on one BraVa tree it traded recall for false surface (docs/RESULTS.md).
+    /// does, provided at least half of the views (rounded up) show residual, and (with
+    /// `occluded_connected`) the voxel connects to a fully supported one or to the prior. Off:
+    /// every view must show residual (the vessels behind the prior in any view are never
+    /// seeded). Applies to runs with at least `occluded_min_views` views. Off by default: with 3
+    /// views it helps some cases and hurts others, the same ones with two seeds (BraVa: CD_ROI
+    /// −0.18 mm on average, 5 trees better, 3 worse; worse on TopCoW and the demo; docs/RESULTS.md).
     pub occluded_views_support: bool,
     /// With `occluded_views_support`: a voxel that a view passed only because the prior hides
     /// it is kept only when its 26-connected group of supported voxels holds a voxel that every
     /// view supports with residual, or comes within `connected_to_prior_mm` of the prior.
     pub occluded_connected: bool,
+    /// Apply `occluded_views_support` only to runs with at least this many views.
+    pub occluded_min_views: usize,
     /// Keep only seeds in connected groups of supported voxels that come within this distance
     /// (mm) of the prior: a vessel tree is connected, while the intersections of two views'
     /// back-projections ("ghosts") float free. 0 = off. Measured on the 8 BraVa trees
@@ -122,6 +127,7 @@ impl Default for InitConfig {
             knn: 3,
             occluded_views_support: false,
             occluded_connected: true,
+            occluded_min_views: 3,
             connected_to_prior_mm: 3.0,
             connected_max_views: 2,
         }

@@ -144,7 +144,7 @@ pub fn n2_seeds(
                 return Err(CoreError::invalid(format!("init.n2_mode {:?} needs a prior mesh", cfg.n2_mode)));
             };
             let prior_sil: Vec<Mask> = silhouettes(s, views).iter().map(|p| p.dilated(cfg.prior_dilation_px)).collect();
-            if cfg.occluded_views_support {
+            if cfg.occluded_views_support && views.len() >= cfg.occluded_min_views {
                 occluded = Some(
                     masks.iter().zip(&prior_sil).map(|(m, p)| m.dilated(cfg.residual_dilation_px).and(p)).collect(),
                 );
@@ -358,6 +358,60 @@ mod tests {
     }
 
     #[test]
+    fn occluded_views_support_seeds_vessels_behind_the_prior_that_connect_to_it() {
+        let (_, views, _, bounds) = scene();
+        // A short prior vessel and two thin ones parallel to it, hidden behind it in view 0
+        // (shifted along that view's rays, d = +y): one 4.5 mm away (its group comes within
+        // reach of the prior), one 10 mm away (connected to nothing).
+        let short = ([-3.0, 0.0, 0.0], [3.0, 0.0, 0.0]);
+        let d = -views[0].source_mm().normalize();
+        let shifted = |k: f64| {
+            let (a, b) = (DVec3::from(short.0) + k * d, DVec3::from(short.1) + k * d);
+            (a.to_array(), b.to_array())
+        };
+        let (near, far) = (shifted(4.5), shifted(10.0));
+        let grid = Grid::covering(&bounds, 0.4).unwrap();
+        let complete = rasterize_segments(
+            &[segment(short.0, short.1, 1.2), segment(near.0, near.1, 0.6), segment(far.0, far.1, 0.6)],
+            grid,
+            2,
+        );
+        let prior = extract_isosurface(&rasterize_segments(&[segment(short.0, short.1, 1.2)], grid, 2), 0.5);
+        let images: Vec<Image> =
+            project_volume(&complete, &views).into_iter().map(|data| Image { width: 64, height: 64, data }).collect();
+        let seeds_with = |occluded: bool, connected: bool| {
+            let cfg = InitConfig {
+                n2: 3000,
+                prior_dilation_px: 1,
+                occluded_views_support: occluded,
+                occluded_connected: connected,
+                ..InitConfig::default()
+            };
+            n2_seeds(&cfg, &views, &images, Some(&prior), &bounds, 0.4, 7).unwrap()
+        };
+        let on =
+            |seeds: &[DVec3], s: ([f64; 3], [f64; 3])| seeds.iter().filter(|p| to_segment(**p, s.0, s.1) < 1.0).count();
+        let off = seeds_with(false, true);
+        let (with, unfiltered) = (seeds_with(true, true), seeds_with(true, false));
+        eprintln!(
+            "near / far hidden vessel seeds: off {} / {}, on {} / {}, on without the connection test {} / {}",
+            on(&off, near),
+            on(&off, far),
+            on(&with, near),
+            on(&with, far),
+            on(&unfiltered, near),
+            on(&unfiltered, far)
+        );
+        assert_eq!(on(&off, near) + on(&off, far), 0, "hidden in view 0: no residual support without the option");
+        assert!(on(&with, near) > 10, "the vessel next to the prior is seeded");
+        assert!(on(&unfiltered, far) > 10, "the far one too without the connection test");
+        assert_eq!(on(&with, far), 0, "the far one connects to nothing: dropped");
+        let cfg = InitConfig { n2: 3000, prior_dilation_px: 1, occluded_views_support: true, ..InitConfig::default() };
+        let two = n2_seeds(&cfg, &views[..2], &images[..2], Some(&prior), &bounds, 0.4, 7).unwrap();
+        assert_eq!(on(&two, near), 0, "not applied below occluded_min_views");
+    }
+
+    #[test]
     fn mask_intersection_seeds_both_vessels_and_the_count_is_capped() {
         let (_, views, images, bounds) = scene();
         let cfg = InitConfig { n2: 400, n2_mode: SeedMode::AllViewsIntersect, ..InitConfig::default() };
@@ -389,6 +443,8 @@ mod tests {
                 prior_dilation_px: 1,
                 connected_to_prior_mm: reach,
                 connected_max_views: max_views,
+                // This test is about the prior-connectivity filter alone.
+                occluded_views_support: false,
                 ..InitConfig::default()
             };
             n2_seeds(&cfg, &views, &images, Some(&prior), &bounds, 0.4, 7).unwrap()
