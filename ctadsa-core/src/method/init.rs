@@ -319,10 +319,6 @@ mod tests {
     /// mesh, the views and their images.
     fn scene() -> (TriMesh, Vec<ConeBeamView>, Vec<Image>, BoxMm) {
         let bounds = BoxMm { min_mm: [-15.0; 3], max_mm: [15.0; 3] };
-        let grid = Grid::covering(&bounds, 0.4).unwrap();
-        let complete =
-            rasterize_segments(&[segment(PRIOR.0, PRIOR.1, 1.2), segment(MISSING.0, MISSING.1, 0.6)], grid, 2);
-        let prior = extract_isosurface(&rasterize_segments(&[segment(PRIOR.0, PRIOR.1, 1.2)], grid, 2), 0.5);
         let views: Vec<ConeBeamView> = [-90.0, 0.0, -45.0]
             .iter()
             .map(|&primary_deg| {
@@ -338,9 +334,26 @@ mod tests {
                 .unwrap()
             })
             .collect();
-        let images =
-            project_volume(&complete, &views).into_iter().map(|data| Image { width: 64, height: 64, data }).collect();
+        let (prior, images) = prior_and_images(PRIOR, &[MISSING], &views, &bounds);
         (prior, views, images, bounds)
+    }
+
+    /// The prior mesh (`prior`, radius 1.2 mm) and the views' images of it with `missing`
+    /// vessels (radius 0.6 mm), on the scene's 0.4 mm grid.
+    fn prior_and_images(
+        prior: ([f64; 3], [f64; 3]),
+        missing: &[([f64; 3], [f64; 3])],
+        views: &[ConeBeamView],
+        bounds: &BoxMm,
+    ) -> (TriMesh, Vec<Image>) {
+        let grid = Grid::covering(bounds, 0.4).unwrap();
+        let mut segments = vec![segment(prior.0, prior.1, 1.2)];
+        segments.extend(missing.iter().map(|m| segment(m.0, m.1, 0.6)));
+        let complete = rasterize_segments(&segments, grid, 2);
+        let mesh = extract_isosurface(&rasterize_segments(&segments[..1], grid, 2), 0.5);
+        let images =
+            project_volume(&complete, views).into_iter().map(|data| Image { width: 64, height: 64, data }).collect();
+        (mesh, images)
     }
 
     #[test]
@@ -370,15 +383,7 @@ mod tests {
             (a.to_array(), b.to_array())
         };
         let (near, far) = (shifted(4.5), shifted(10.0));
-        let grid = Grid::covering(&bounds, 0.4).unwrap();
-        let complete = rasterize_segments(
-            &[segment(short.0, short.1, 1.2), segment(near.0, near.1, 0.6), segment(far.0, far.1, 0.6)],
-            grid,
-            2,
-        );
-        let prior = extract_isosurface(&rasterize_segments(&[segment(short.0, short.1, 1.2)], grid, 2), 0.5);
-        let images: Vec<Image> =
-            project_volume(&complete, &views).into_iter().map(|data| Image { width: 64, height: 64, data }).collect();
+        let (prior, images) = prior_and_images(short, &[near, far], &views, &bounds);
         let seeds_with = |occluded: bool, connected: bool| {
             let cfg = InitConfig {
                 n2: 3000,
@@ -425,18 +430,9 @@ mod tests {
 
     #[test]
     fn seeds_connected_to_the_prior_keep_branches_and_drop_floating_vessels() {
-        let bounds = BoxMm { min_mm: [-15.0; 3], max_mm: [15.0; 3] };
-        let grid = Grid::covering(&bounds, 0.4).unwrap();
         let (branch, floating) = (([4.0, 0.0, 0.0], [4.0, 8.0, 8.0]), ([-8.0, 8.0, -8.0], [-8.0, 8.0, 8.0]));
-        let complete = rasterize_segments(
-            &[segment(PRIOR.0, PRIOR.1, 1.2), segment(branch.0, branch.1, 0.6), segment(floating.0, floating.1, 0.6)],
-            grid,
-            2,
-        );
-        let prior = extract_isosurface(&rasterize_segments(&[segment(PRIOR.0, PRIOR.1, 1.2)], grid, 2), 0.5);
-        let (_, views, _, _) = scene();
-        let images: Vec<Image> =
-            project_volume(&complete, &views).into_iter().map(|data| Image { width: 64, height: 64, data }).collect();
+        let (_, views, _, bounds) = scene();
+        let (prior, images) = prior_and_images(PRIOR, &[branch, floating], &views, &bounds);
         let seeds_up_to = |reach: f64, max_views: usize| {
             let cfg = InitConfig {
                 n2: 2000,

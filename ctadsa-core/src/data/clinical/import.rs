@@ -109,8 +109,8 @@ fn flip(image: &Image, horizontal: bool, vertical: bool) -> Image {
     Image { width: image.width, height: image.height, data }
 }
 
-/// Mask, subtraction, frame choice, MIP, orientation and binning of one run.
-pub fn dsa_view(run: &XaRun, name: &str, o: &DsaOptions) -> Result<DsaView> {
+/// The options' checks against the run, then its mask frames (0-based).
+fn mask_frames(run: &XaRun, o: &DsaOptions) -> Result<Vec<usize>> {
     let path = &run.path;
     if !(o.curve_fraction > 0.0 && o.curve_fraction <= 1.0) {
         return Err(CoreError::invalid(format!("curve fraction must be in (0, 1], got {}", o.curve_fraction)));
@@ -122,7 +122,6 @@ pub fn dsa_view(run: &XaRun, name: &str, o: &DsaOptions) -> Result<DsaView> {
         ));
     }
     let n = run.frames.len();
-    let mut notes = vec![format!("view `{name}` from {}", path.display())];
     let masks: Vec<usize> = match (&o.mask_frames, o.subtraction) {
         (_, Subtraction::None) => Vec::new(),
         (Some(m), _) => m.clone(),
@@ -139,6 +138,45 @@ pub fn dsa_view(run: &XaRun, name: &str, o: &DsaOptions) -> Result<DsaView> {
              (use subtraction `none` if the frame is already a subtracted image)",
         ));
     }
+    Ok(masks)
+}
+
+/// The flips (columns, rows) that bring the run's image into the renderer's orientation for
+/// `view` (columns along camera x, rows along camera y), with a note saying why.
+fn orientation_flips(run: &XaRun, view: &ConeBeamView, o: &DsaOptions) -> (bool, bool, String) {
+    let r = view.rotation();
+    let (cam_x, cam_y) = (r.row(0), r.row(1));
+    let ours = [direction_letter(cam_x), direction_letter(cam_y)];
+    let (flip_h, flip_v) = (o.flip_horizontal, o.flip_vertical);
+    match &run.patient_orientation {
+        Some(po) if po.len() == 2 => {
+            let theirs: Vec<char> = po.iter().map(|s| s.chars().next().unwrap_or('?')).collect();
+            let h = theirs[0] == opposite(ours[0]);
+            let v = theirs[1] == opposite(ours[1]);
+            let note = format!(
+                "Patient Orientation {po:?}; renderer expects {}\\{} here → flip columns: {h}, rows: {v}",
+                ours[0], ours[1]
+            );
+            (flip_h ^ h, flip_v ^ v, note)
+        }
+        _ => (
+            flip_h,
+            flip_v,
+            format!(
+                "no Patient Orientation (0020,0020): columns assumed to run towards {} and rows towards {} \
+                 (the image as seen from the source); use the flip options otherwise",
+                ours[0], ours[1]
+            ),
+        ),
+    }
+}
+
+/// Mask, subtraction, frame choice, MIP, orientation and binning of one run.
+pub fn dsa_view(run: &XaRun, name: &str, o: &DsaOptions) -> Result<DsaView> {
+    let path = &run.path;
+    let masks = mask_frames(run, o)?;
+    let n = run.frames.len();
+    let mut notes = vec![format!("view `{name}` from {}", path.display())];
     let mask = average_frames(&run.frames, &masks);
     let subtracted: Vec<Vec<f32>> = run.frames.iter().map(|f| subtract(&mask, f, o.subtraction)).collect();
     let curve = contrast_curve(&subtracted);
@@ -177,30 +215,8 @@ pub fn dsa_view(run: &XaRun, name: &str, o: &DsaOptions) -> Result<DsaView> {
         primary_deg: alpha,
         secondary_deg: beta,
     };
-    // Orientation: the renderer's columns run along camera x, rows along camera y.
-    let view = ConeBeamView::from_tigre(&geometry)?;
-    let r = view.rotation();
-    let (cam_x, cam_y) = (r.row(0), r.row(1));
-    let ours = [direction_letter(cam_x), direction_letter(cam_y)];
-    let (mut flip_h, mut flip_v) = (o.flip_horizontal, o.flip_vertical);
-    match &run.patient_orientation {
-        Some(po) if po.len() == 2 => {
-            let theirs: Vec<char> = po.iter().map(|s| s.chars().next().unwrap_or('?')).collect();
-            let h = theirs[0] == opposite(ours[0]);
-            let v = theirs[1] == opposite(ours[1]);
-            flip_h ^= h;
-            flip_v ^= v;
-            notes.push(format!(
-                "Patient Orientation {po:?}; renderer expects {}\\{} here → flip columns: {h}, rows: {v}",
-                ours[0], ours[1]
-            ));
-        }
-        _ => notes.push(format!(
-            "no Patient Orientation (0020,0020): columns assumed to run towards {} and rows towards {} \
-             (the image as seen from the source); use the flip options otherwise",
-            ours[0], ours[1]
-        )),
-    }
+    let (flip_h, flip_v, note) = orientation_flips(run, &ConeBeamView::from_tigre(&geometry)?, o);
+    notes.push(note);
     let image = flip(&image, flip_h, flip_v);
     let b = o.binning.max(1);
     let image = bin_image(&image, b);

@@ -175,17 +175,17 @@ fn read_binary(bytes: &[u8], at: &mut usize, t: &str) -> std::result::Result<f64
 /// Longest list property a PLY row may hold (a face's vertices).
 const MAX_PLY_LIST: usize = 1024;
 
-/// Parses a PLY mesh (ASCII or binary little-endian) with `vertex` x/y/z and `face`
-/// `vertex_indices` (or `vertex_index`).
-pub fn parse_ply(bytes: &[u8]) -> std::result::Result<TriMesh, String> {
-    let end = bytes.windows(11).position(|w| w == b"end_header\n").ok_or("not a PLY file (no `end_header`)")?;
-    let header = std::str::from_utf8(&bytes[..end]).map_err(|_| "PLY header is not text")?;
+/// One element of a PLY header: name, row count, properties.
+type PlyElement = (String, usize, Vec<Prop>);
+
+/// The header up to `end_header`: whether the body is ASCII, and the elements.
+fn parse_ply_header(header: &str) -> std::result::Result<(bool, Vec<PlyElement>), String> {
     let mut lines = header.lines();
     if lines.next().map(str::trim) != Some("ply") {
         return Err("not a PLY file (first line is not `ply`)".into());
     }
     let mut format = String::new();
-    let mut elements: Vec<(String, usize, Vec<Prop>)> = Vec::new();
+    let mut elements: Vec<PlyElement> = Vec::new();
     for line in lines {
         let w: Vec<&str> = line.split_whitespace().collect();
         match w.as_slice() {
@@ -212,19 +212,33 @@ pub fn parse_ply(bytes: &[u8]) -> std::result::Result<TriMesh, String> {
         "binary_little_endian" => false,
         other => return Err(format!("unsupported PLY format `{other}`")),
     };
-    let body = &bytes[end + 11..];
-    // Every value takes at least one byte: a header claiming more rows than the data can hold
-    // is refused before any row is read (and an element without properties holds no rows).
+    Ok((ascii, elements))
+}
+
+/// Every value takes at least one byte: a header claiming more rows than the data can hold is
+/// refused before any row is read (and an element without properties holds no rows).
+fn check_ply_sizes(elements: &[PlyElement], body_bytes: usize) -> std::result::Result<(), String> {
     let mut values = 0u128;
-    for (name, count, props) in &elements {
+    for (name, count, props) in elements {
         if *count > 0 && props.is_empty() {
             return Err(format!("element `{name}` has {count} rows but no property"));
         }
         values += *count as u128 * props.len() as u128;
     }
-    if values > body.len() as u128 {
-        return Err(format!("the header claims {values} values but the data holds {} bytes", body.len()));
+    if values > body_bytes as u128 {
+        return Err(format!("the header claims {values} values but the data holds {body_bytes} bytes"));
     }
+    Ok(())
+}
+
+/// Parses a PLY mesh (ASCII or binary little-endian) with `vertex` x/y/z and `face`
+/// `vertex_indices` (or `vertex_index`).
+pub fn parse_ply(bytes: &[u8]) -> std::result::Result<TriMesh, String> {
+    let end = bytes.windows(11).position(|w| w == b"end_header\n").ok_or("not a PLY file (no `end_header`)")?;
+    let header = std::str::from_utf8(&bytes[..end]).map_err(|_| "PLY header is not text")?;
+    let (ascii, elements) = parse_ply_header(header)?;
+    let body = &bytes[end + 11..];
+    check_ply_sizes(&elements, body.len())?;
     let text = if ascii { std::str::from_utf8(body).map_err(|_| "PLY ASCII body is not text")? } else { "" };
     let mut tokens = text.split_whitespace();
     let mut at = 0usize;
@@ -257,11 +271,8 @@ pub fn parse_ply(bytes: &[u8]) -> std::result::Result<TriMesh, String> {
                         if !(0.0..=MAX_PLY_LIST as f64).contains(&count) {
                             return Err(format!("a `{pn}` list of {count} entries (at most {MAX_PLY_LIST})"));
                         }
-                        let n = count as usize;
-                        let mut idx = Vec::with_capacity(n);
-                        for _ in 0..n {
-                            idx.push(next(it)?);
-                        }
+                        let idx =
+                            (0..count as usize).map(|_| next(it)).collect::<std::result::Result<Vec<f64>, _>>()?;
                         if name == "face" && (pn == "vertex_indices" || pn == "vertex_index") {
                             if idx.iter().any(|&i| i < 0.0) {
                                 return Err(format!("negative vertex index in face {}", mesh.faces.len()));
