@@ -84,27 +84,43 @@ pub fn run(args: ExperimentArgs) -> Result<()> {
     Ok(())
 }
 
-/// Runs the unfinished cells, `jobs` at a time; failures are listed at the end.
+/// Runs the unfinished cells, `jobs` at a time; failures are listed at the end. One at a time,
+/// a cell shows its progress bar and Ctrl-C / SIGTERM stop the experiment after saving the
+/// cell's checkpoint (the cell is redone on the next run).
 fn run_unfinished(exp: &Experiment, backend: BackendKind, jobs: usize) -> Result<()> {
     let todo: Vec<usize> = (0..exp.cells.len()).filter(|&i| exp.cells[i].finished().is_none()).collect();
     eprintln!("{} cells: {} done before, {} to run", exp.cells.len(), exp.cells.len() - todo.len(), todo.len());
     let device = backend.device()?.autodiff();
-    let queue = Mutex::new(todo.into_iter());
-    let failures = Mutex::new(Vec::new());
-    std::thread::scope(|s| {
-        for _ in 0..jobs.max(1) {
-            s.spawn(|| {
-                while let Some(i) = queue.lock().expect("no poisoned lock").next() {
-                    let cell = &exp.cells[i];
-                    eprintln!("cell {}/{}: {}", i + 1, exp.cells.len(), cell.label());
-                    if let Err(e) = exp.run_cell(i, device.clone(), &mut Silent) {
-                        failures.lock().expect("no poisoned lock").push(format!("{}: {e:#}", cell.dir.display()));
-                    }
-                }
-            });
+    let mut failures = Vec::new();
+    if jobs <= 1 {
+        let mut terminal = Terminal::new();
+        for i in todo {
+            let cell = &exp.cells[i];
+            eprintln!("cell {}/{}: {}", i + 1, exp.cells.len(), cell.label());
+            match exp.run_cell(i, device.clone(), &mut terminal) {
+                Ok(Some(_)) => {}
+                Ok(None) => bail!("interrupted in cell {i} ({}): run the same command again to go on", cell.label()),
+                Err(e) => failures.push(format!("{}: {e:#}", cell.dir.display())),
+            }
         }
-    });
-    let failures = failures.into_inner().expect("no poisoned lock");
+    } else {
+        let queue = Mutex::new(todo.into_iter());
+        let shared = Mutex::new(Vec::new());
+        std::thread::scope(|s| {
+            for _ in 0..jobs {
+                s.spawn(|| {
+                    while let Some(i) = queue.lock().expect("no poisoned lock").next() {
+                        let cell = &exp.cells[i];
+                        eprintln!("cell {}/{}: {}", i + 1, exp.cells.len(), cell.label());
+                        if let Err(e) = exp.run_cell(i, device.clone(), &mut Silent) {
+                            shared.lock().expect("no poisoned lock").push(format!("{}: {e:#}", cell.dir.display()));
+                        }
+                    }
+                });
+            }
+        });
+        failures = shared.into_inner().expect("no poisoned lock");
+    }
     if !failures.is_empty() {
         bail!("{} cell(s) failed (finished cells are kept; rerun to retry):\n{}", failures.len(), failures.join("\n"));
     }
