@@ -1,7 +1,8 @@
 //! Clinical inputs: DSA runs written as DICOM by dicom-rs are read back into a case that equals
 //! the synthetic case they were made from (geometry from the positioner tags, log subtraction,
-//! automatic frame choice, orientation), bad runs give errors that name the problem, and the
-//! real TopCoW label volume becomes a prior mesh.
+//! automatic frame choice, orientation), a multi-frame run written by dcmtk is read with its
+//! frames and geometry, bad runs give errors that name the problem, and the real TopCoW label
+//! volume becomes a prior mesh.
 
 use std::path::{Path, PathBuf};
 
@@ -242,4 +243,60 @@ fn documented_matrix_view_is_the_reference_ap_view() {
     }
     let docs = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/docs/CLINICAL.md")).unwrap();
     assert!(docs.contains("[[1, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 500], [0, 0, 0, 1]]"), "docs example changed");
+}
+
+/// A multi-frame XA run written by another toolkit: dcmtk's `dump2dcm` makes it in the test from
+/// a text dump (12 bits stored in 16, no mask sequence, explicit and implicit VR little endian),
+/// and `read_xa_run` reads back every frame and the geometry. Without dcmtk the test prints why
+/// and passes, unless `CTADSA_REQUIRE_DICOM_TOOLS=1` (CI installs dcmtk).
+#[test]
+fn reads_multiframe_xa_written_by_dcmtk() {
+    let required = std::env::var("CTADSA_REQUIRE_DICOM_TOOLS").is_ok_and(|v| v == "1");
+    if std::process::Command::new("dump2dcm").arg("--version").output().is_err() {
+        assert!(!required, "CTADSA_REQUIRE_DICOM_TOOLS=1 but dcmtk's `dump2dcm` is not on the PATH");
+        eprintln!("SKIPPED: the dcmtk-written XA fixture was not made: `dump2dcm` is not on the PATH");
+        return;
+    }
+    let dir = tmp("dcmtk");
+    std::fs::create_dir_all(&dir).unwrap();
+    let (w, h, n) = (48usize, 32usize, 4usize);
+    let value = |f: usize, r: usize, c: usize| ((f * 1000 + r * 40 + c) % 4096) as u16;
+    let mut raw = Vec::new();
+    for f in 0..n {
+        for r in 0..h {
+            for c in 0..w {
+                raw.extend_from_slice(&value(f, r, c).to_le_bytes());
+            }
+        }
+    }
+    std::fs::write(dir.join("pixels.raw"), &raw).unwrap();
+    let dump = format!(
+        "(0008,0016) UI =XRayAngiographicImageStorage\n(0008,0018) UI [1.2.826.0.1.3680043.2.1143.7]\n\
+         (0008,0060) CS [XA]\n(0018,1110) DS [1000]\n(0018,1111) DS [750]\n(0018,1164) DS [0.3\\0.2]\n\
+         (0018,1510) DS [30.5]\n(0018,1511) DS [-10]\n(0028,0002) US 1\n(0028,0004) CS [MONOCHROME2]\n\
+         (0028,0008) IS [{n}]\n(0028,0010) US {h}\n(0028,0011) US {w}\n(0028,0100) US 16\n(0028,0101) US 12\n\
+         (0028,0102) US 11\n(0028,0103) US 0\n(7fe0,0010) OW ={}\n",
+        dir.join("pixels.raw").display()
+    );
+    std::fs::write(dir.join("run.dump"), dump).unwrap();
+    for (syntax, flag) in [("explicit", "+te"), ("implicit", "+ti")] {
+        let file = dir.join(format!("run-{syntax}.dcm"));
+        let made = std::process::Command::new("dump2dcm")
+            .args([flag, dir.join("run.dump").to_str().unwrap(), file.to_str().unwrap()])
+            .output()
+            .unwrap();
+        assert!(made.status.success(), "dump2dcm: {}", String::from_utf8_lossy(&made.stderr));
+        let run = read_xa_run(&file).unwrap_or_else(|e| panic!("{syntax} VR: {e}"));
+        assert_eq!((run.columns, run.rows, run.frames.len()), (w as u32, h as u32, n), "{syntax} VR");
+        for (f, frame) in run.frames.iter().enumerate() {
+            for (i, &v) in frame.iter().enumerate() {
+                assert_eq!(v, value(f, i / w, i % w) as f32, "{syntax} VR: frame {f}, pixel {i}");
+            }
+        }
+        let g = run.geometry;
+        assert_eq!((g.dsd_mm, g.dso_mm, g.primary_deg, g.secondary_deg), (1000.0, 750.0, 30.5, -10.0));
+        assert_eq!(g.pixel_mm, [0.2, 0.3], "[column, row] spacing from (0018,1164) row\\column");
+        assert!(run.mask_frames.is_empty(), "no Mask Subtraction Sequence in this file");
+    }
+    std::fs::remove_dir_all(&dir).ok();
 }
