@@ -301,7 +301,9 @@ fn report_page_renders_its_images_in_headless_chromium() {
     let page = ctadsa_core::output::report::write_report(&dir).expect("report");
     let html = std::fs::read_to_string(&page).unwrap();
     assert!(html.contains("data:image/png;base64,") && !html.contains("src=\"renders/"), "images are embedded");
-    for section in ["Inputs", "Renders against targets", "Completed vessel tree", "Metrics", "Configuration"] {
+    for section in
+        ["Inputs", "Renders against targets", "Completed vessel tree", "Interactive view", "Metrics", "Configuration"]
+    {
         assert!(html.contains(section), "section `{section}` missing");
     }
     let Some(browser) = chromium() else {
@@ -342,4 +344,10 @@ fn report_page_renders_its_images_in_headless_chromium() {
     });
     assert!(total >= 5, "renders (3), mesh and loss curve expected, found {total} images");
     assert_eq!(loaded, Some(total), "every image decodes in the browser");
+    // The interactive 3-D view (three.js, embedded) draws the completed surface offline.
+    let error = dom.find("data-viewer-error=\"").map(|i| dom[i..].chars().take(300).collect::<String>());
+    assert!(error.is_none(), "the 3-D view failed: {error:?}");
+    let drawn = attr("data-viewer-pixels").expect("the 3-D view's script ran");
+    eprintln!("chromium: the 3-D view drew {drawn} non-background pixels");
+    assert!(drawn > 500, "the 3-D view's canvas is (nearly) blank: {drawn} pixels drawn");
 }

@@ -10,7 +10,11 @@ use base64::Engine as _;
 use serde_json::Value;
 
 use crate::data::case::{CASE_FILE, CaseFile, ViewGeometry};
+use crate::data::mesh::TriMesh;
+use crate::data::mesh::io::read_mesh;
+use crate::data::mesh::split::split_by_distance;
 use crate::error::{CoreError, Result, read_file, write_file};
+use crate::output::viewer::{ViewerPart, viewer_html};
 
 /// The report's file name inside the run folder.
 pub const REPORT_FILE: &str = "report.html";
@@ -70,6 +74,7 @@ pub fn write_report(run_dir: &Path) -> Result<PathBuf> {
     inputs(&mut html, case.as_ref());
     renders(&mut html, run_dir)?;
     completed_tree(&mut html, run_dir)?;
+    interactive_view(&mut html, run_dir, case.as_ref(), case_dir.as_deref());
     metrics(&mut html, &summary);
     poses(&mut html, run_dir, &summary)?;
     if run_dir.join("loss.png").exists() {
@@ -193,6 +198,29 @@ fn completed_tree(html: &mut String, run_dir: &Path) -> Result<()> {
         html.push_str(&png_tag(&run_dir.join("mesh.png"), "completed mesh and prior")?);
     }
     Ok(())
+}
+
+/// The completed surface as an interactive 3-D view: where the prior had vessels in red, the
+/// new vessels in blue (as `mesh-completion.png`).
+fn interactive_view(html: &mut String, run_dir: &Path, case: Option<&CaseFile>, case_dir: Option<&Path>) {
+    let Some(mesh_path) = ["obj", "ply", "stl"].iter().map(|e| run_dir.join(format!("mesh.{e}"))).find(|p| p.exists())
+    else {
+        return;
+    };
+    let Ok(mesh) = read_mesh(&mesh_path) else { return };
+    let prior = match (case.and_then(|c| c.prior.as_ref()), case_dir) {
+        (Some(p), Some(d)) => read_mesh(&d.join(&p.mesh)).ok(),
+        _ => None,
+    };
+    html.push_str("<h3>Interactive view</h3>");
+    let (old, new) = match &prior {
+        Some(p) => split_by_distance(&mesh, p, 1.0),
+        None => (TriMesh::default(), mesh),
+    };
+    html.push_str(&viewer_html(&[
+        ViewerPart { name: "prior", mesh: &old, rgb: [210, 60, 50] },
+        ViewerPart { name: "new vessels", mesh: &new, rgb: [60, 120, 220] },
+    ]));
 }
 
 /// Scores of the completed surface and of the prior alone, when the case has ground truth.
