@@ -65,6 +65,15 @@ enum BenchWhat {
         #[arg(long, value_enum, default_value = "ndarray")]
         backend: BackendKind,
     },
+    /// One table of the training step for the configurations users run: the quick config on the
+    /// demo case, and the paper's schedule (one 512² view per step, ~60k Gaussians) with the
+    /// hash table at 2^19 and at the reference's 2^20; each row in its own process (so peak
+    /// memory is per row).
+    TrainSuite {
+        /// Timed steps per row (after 2 warm-up steps).
+        #[arg(long, default_value_t = 5)]
+        steps: usize,
+    },
     /// Our voxel projector against plastimatch's DRR on the same vessel volume.
     Projector {
         /// Voxels along each side of the cubic volume.
@@ -488,5 +497,6 @@ pub fn run(args: BenchArgs) -> Result<()> {
         BenchWhat::Train { case, config, overrides, steps, backend } => {
             bench_train(case, config, &overrides, steps, backend)
         }
+        BenchWhat::TrainSuite { steps } => crate::bench_suite::train_suite(steps, args.threads),
     }
 }

@@ -2,6 +2,7 @@
 
 mod backend;
 mod bench;
+mod bench_suite;
 mod clinical;
 mod complete;
 mod diagnose;
