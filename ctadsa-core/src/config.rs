@@ -306,6 +306,13 @@ pub struct OutputConfig {
     /// See `keep_prior` (mm). 0.3 scored best of 0.3 and 1.0 on the BraVa trees
     /// (docs/RESULTS.md).
     pub keep_prior_mm: f64,
+    /// Centreline (`centreline.swc` / `.vtp`, TEASAR on the completed solid): each traced
+    /// path covers the voxels within `centreline_scale` × the vessel radius +
+    /// `centreline_const_mm` of it (larger: fewer, longer branches).
+    pub centreline_scale: f64,
+    pub centreline_const_mm: f64,
+    /// Terminal centreline branches shorter than this are removed (mm).
+    pub centreline_min_branch_mm: f64,
 }
 
 impl Default for OutputConfig {
@@ -321,6 +328,9 @@ impl Default for OutputConfig {
             level_from_views: true,
             keep_prior: true,
             keep_prior_mm: 0.3,
+            centreline_scale: 1.5,
+            centreline_const_mm: 1.0,
+            centreline_min_branch_mm: 1.0,
         }
     }
 }
@@ -530,6 +540,13 @@ impl Config {
             "output.keep_prior_mm",
             "must be in [0, 100] mm",
         )?;
+        check((0.0..=10.0).contains(&self.output.centreline_scale), "output.centreline_scale", "must be in [0, 10]")?;
+        for (v, k) in [
+            (self.output.centreline_const_mm, "output.centreline_const_mm"),
+            (self.output.centreline_min_branch_mm, "output.centreline_min_branch_mm"),
+        ] {
+            check((0.0..=100.0).contains(&v), k, "must be in [0, 100] mm")?;
+        }
         check(
             (1..=crate::eval::score::MAX_SAMPLES).contains(&self.output.metric_samples),
             "output.metric_samples",

@@ -21,8 +21,14 @@ use crate::stats::percentile;
 /// Distances from every point of `from` to the nearest point of `to` (mm). Empty `to` gives
 /// infinite distances.
 pub fn nearest_distances(from: &[DVec3], to: &[DVec3]) -> Vec<f64> {
+    nearest_points(from, to).into_iter().map(|(d, _)| d).collect()
+}
+
+/// For every point of `from`: the distance to the nearest point of `to` (mm) and its index.
+/// Empty `to` gives `(∞, usize::MAX)`.
+pub fn nearest_points(from: &[DVec3], to: &[DVec3]) -> Vec<(f64, usize)> {
     if to.is_empty() {
-        return vec![f64::INFINITY; from.len()];
+        return vec![(f64::INFINITY, usize::MAX); from.len()];
     }
     let pts: Vec<[f64; 3]> = to.iter().map(|p| p.to_array()).collect();
     let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&pts).expect("non-empty, finite points");
@@ -31,7 +37,7 @@ pub fn nearest_distances(from: &[DVec3], to: &[DVec3]) -> Vec<f64> {
         .nearest_one::<SquaredEuclidean<f64>>()
         .execute()
         .into_iter()
-        .map(|r| r.distance.sqrt())
+        .map(|r| (r.distance.sqrt(), r.item as usize))
         .collect()
 }
 

@@ -1,6 +1,7 @@
 //! Evaluation against ground truth: exact surface distances and coverage, the paper's
 //! point-set convention (with ICP), scoring of a run, and where missing vessels are lost.
 
+pub mod centreline_metrics;
 pub mod diagnose;
 pub mod icp;
 pub mod metrics;

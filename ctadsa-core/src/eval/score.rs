@@ -134,6 +134,8 @@ pub struct CaseTruth {
     pub split: Option<(TriMesh, TriMesh)>,
     /// The missing vessels' centreline (cases made from a tree).
     pub missing_centreline: Option<Vec<Segment>>,
+    /// The whole true centreline (cases made from a tree).
+    pub centreline: Option<Vec<Segment>>,
 }
 
 impl CaseTruth {
@@ -153,11 +155,16 @@ impl CaseTruth {
             _ => None,
         };
         let threshold = case.file.prior.as_ref().and_then(|p| p.threshold_mm);
-        let missing_centreline = match (&gt.tree, threshold) {
-            (Some(tree), Some(d)) => Some(split_by_diameter(&read_swc(&case.path(tree))?.tree, d).missing),
+        let tree = match &gt.tree {
+            Some(path) => Some(read_swc(&case.path(path))?.tree),
+            None => None,
+        };
+        let missing_centreline = match (&tree, threshold) {
+            (Some(tree), Some(d)) => Some(split_by_diameter(tree, d).missing),
             _ => None,
         };
-        Ok(Some(Self { complete, split, missing_centreline }))
+        let centreline = tree.map(|t| t.segments());
+        Ok(Some(Self { complete, split, missing_centreline, centreline }))
     }
 
     /// Scores `pred` against this truth.

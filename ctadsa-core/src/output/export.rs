@@ -8,6 +8,7 @@ use burn::module::Module;
 use glam::DVec3;
 use serde::Serialize;
 
+use crate::config::OutputConfig;
 use crate::data::case::images::write_rgb_or_grey;
 use crate::data::case::{Case, ViewGeometry};
 use crate::data::mesh::TriMesh;
@@ -17,6 +18,7 @@ use crate::data::mesh::render_png::{Coloured, OrbitView, standard_views, write_m
 use crate::data::mesh::split::split_by_distance;
 use crate::data::projector::correction::{PoseCorrection, PoseError, corrected_view, pose_errors};
 use crate::data::volume::nifti_io::write_nifti;
+use crate::data::volume::skeleton::SkeletonParams;
 use crate::data::volume::{Grid, Volume};
 use crate::error::{Result, to_json, write_file};
 use crate::eval::metrics::RegionScores;
@@ -24,7 +26,10 @@ use crate::eval::score::{CaseTruth, EvalOptions};
 use crate::eval::surface_metrics::Coverage;
 use crate::method::model::host_vec;
 use crate::method::train::{StepLog, Trainer};
-use crate::output::extraction::{LevelScore, best_level, density_scale, join_prior, prior_solid, score_levels};
+use crate::output::centreline::{CentrelineSummary, SolidPart, completed_centreline, write_centreline};
+use crate::output::extraction::{
+    LevelScore, best_level, completed_solid, density_scale, join_prior, prior_solid, score_levels,
+};
 use crate::output::plot::{PALETTE, Series, line_plot};
 use ctadsa_render::ConeBeamView;
 
@@ -55,6 +60,8 @@ pub struct RunSummary {
     /// The same scores for the prior alone (what the run started from), for comparison.
     pub prior_metrics: Option<RegionScores>,
     pub prior_coverage: Option<Coverage>,
+    /// The completed centreline (`centreline.swc` / `.vtp`) and its scores against the true tree.
+    pub centreline: CentrelineSummary,
     /// With pose refinement on a case whose true view corrections are known: how far each
     /// refined view is from the truth.
     pub pose_errors: Option<Vec<PoseError>>,
@@ -179,13 +186,14 @@ pub fn write_outputs(dir: &Path, case: &Case, trainer: &Trainer) -> Result<RunSu
     let prior = case.prior_mesh()?;
     let surface = extract_completed_surface(dir, trainer, &volume, prior.as_ref())?;
     let mesh = &surface.mesh;
+    let truth = CaseTruth::load(case)?;
+    let centreline = write_centreline_of(dir, &volume, &surface, prior.as_ref(), &cfg.output, truth.as_ref())?;
     let renders = trainer.render_all()?;
     write_renders(dir, case, trainer, &renders)?;
     write_loss(dir, &trainer.history)?;
     write_mesh_pictures(dir, mesh, prior.as_ref())?;
     // Metrics.
     let options = EvalOptions { samples: cfg.output.metric_samples, ..EvalOptions::default() };
-    let truth = CaseTruth::load(case)?;
     let scored = truth.as_ref().map(|t| t.evaluate(mesh, &options));
     let prior_scored = match (&truth, &prior) {
         (Some(t), Some(p)) => Some(t.evaluate(p, &options)),
@@ -208,6 +216,7 @@ pub fn write_outputs(dir: &Path, case: &Case, trainer: &Trainer) -> Result<RunSu
         paper_metrics: scored.as_ref().map(|r| r.paper),
         prior_metrics: prior_scored.as_ref().map(|r| r.scores),
         prior_coverage: prior_scored.as_ref().map(|r| r.coverage),
+        centreline,
         pose_errors,
     };
     let summary_path = dir.join("summary.json");
@@ -243,6 +252,10 @@ struct CompletedSurface {
     level: f64,
     level_scores: Vec<LevelScore>,
     islands_dropped: usize,
+    /// The extracted iso-surface (islands dropped) before the prior is joined.
+    extracted: TriMesh,
+    /// The prior's voxels on the density grid, where the prior is kept.
+    kept_prior: Option<Volume<u8>>,
 }
 
 /// The iso-surface of the density at the level from the views (or the configured one), small
@@ -280,10 +293,38 @@ fn extract_completed_surface(
             write_mesh(&dir.join(format!("mesh-extracted.{}", out.mesh_format)), &extracted)?;
             join_prior(&extracted, p, s, out.keep_prior_mm)
         }
-        _ => extracted,
+        _ => extracted.clone(),
     };
     write_mesh(&dir.join(format!("mesh.{}", out.mesh_format)), &mesh)?;
-    Ok(CompletedSurface { mesh, level, level_scores, islands_dropped })
+    Ok(CompletedSurface { mesh, level, level_scores, islands_dropped, extracted, kept_prior: solid })
+}
+
+/// The centreline of the completed solid, written and scored ([`write_centreline`]).
+fn write_centreline_of(
+    dir: &Path,
+    volume: &Volume<f32>,
+    surface: &CompletedSurface,
+    prior: Option<&TriMesh>,
+    out: &OutputConfig,
+    truth: Option<&CaseTruth>,
+) -> Result<CentrelineSummary> {
+    let above_level = completed_solid(volume, surface.level, None);
+    let prior_voxels = match (&surface.kept_prior, prior) {
+        (Some(kept), _) => Some(kept.clone()),
+        (None, Some(p)) => Some(prior_solid(p, volume)),
+        (None, None) => None,
+    };
+    let prior_part = prior.zip(prior_voxels.as_ref()).map(|(surface, voxels)| SolidPart { voxels, surface });
+    let extracted = SolidPart { voxels: &above_level, surface: &surface.extracted };
+    let params = SkeletonParams {
+        scale: out.centreline_scale,
+        const_mm: out.centreline_const_mm,
+        min_branch_mm: out.centreline_min_branch_mm,
+        ..SkeletonParams::default()
+    };
+    let tree = completed_centreline(extracted, prior_part, surface.kept_prior.is_some(), &params);
+    let truth = truth.and_then(|t| t.missing_centreline.as_deref().zip(t.centreline.as_deref()));
+    write_centreline(dir, &tree, truth)
 }
 
 /// `loss.csv` and `loss.png` (log scale; a term is drawn where it is positive).

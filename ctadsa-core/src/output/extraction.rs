@@ -63,16 +63,7 @@ pub fn score_levels(
         .iter()
         .map(|&fraction| {
             let level = fraction * scale;
-            let solid = Volume {
-                grid: volume.grid,
-                index_to_world: volume.index_to_world,
-                data: volume
-                    .data
-                    .iter()
-                    .enumerate()
-                    .map(|(i, &d)| (d as f64 >= level || keep.is_some_and(|k| k.data[i] != 0)) as u8 as f32)
-                    .collect(),
-            };
+            let solid = completed_solid(volume, level, keep).map(f32::from);
             let sil = project_volume(&solid, views);
             let dice = sil
                 .iter()
@@ -83,6 +74,20 @@ pub fn score_levels(
             LevelScore { fraction, level, dice }
         })
         .collect()
+}
+
+/// `density ≥ level`, joined with `keep` (e.g. the prior's voxels) where given.
+pub fn completed_solid(volume: &Volume<f32>, level: f64, keep: Option<&Volume<u8>>) -> Volume<u8> {
+    Volume {
+        grid: volume.grid,
+        index_to_world: volume.index_to_world,
+        data: volume
+            .data
+            .iter()
+            .enumerate()
+            .map(|(i, &d)| (d as f64 >= level || keep.is_some_and(|k| k.data[i] != 0)) as u8)
+            .collect(),
+    }
 }
 
 /// The best-scoring level (the lowest fraction among equals).
@@ -109,22 +114,12 @@ pub fn join_prior(extracted: &TriMesh, prior: &TriMesh, solid: &Volume<u8>, marg
         .faces
         .iter()
         .zip(centroids.iter().zip(&dist))
-        .filter(|(_, (c, d))| **d > margin_mm && !inside(solid, **c))
+        .filter(|(_, (c, d))| **d > margin_mm && !solid.is_set_at(**c))
         .map(|(f, _)| *f)
         .collect();
     let mut out = prior.clone();
     out.append(&new.compacted());
     out
-}
-
-/// Whether `p` lies in a set voxel of `solid`.
-fn inside(solid: &Volume<u8>, p: DVec3) -> bool {
-    let g = solid.grid;
-    let ijk: Vec<f64> = (0..3).map(|a| ((p[a] - g.origin_mm[a]) / g.spacing_mm[a]).floor()).collect();
-    if ijk.iter().zip(g.dims).any(|(&v, d)| !(v >= 0.0 && v < d as f64)) {
-        return false;
-    }
-    solid.get(ijk[0] as usize, ijk[1] as usize, ijk[2] as usize) != 0
 }
 
 /// The prior's solid voxels on `volume`'s grid.

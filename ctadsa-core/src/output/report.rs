@@ -76,6 +76,7 @@ pub fn write_report(run_dir: &Path) -> Result<PathBuf> {
     completed_tree(&mut html, run_dir)?;
     interactive_view(&mut html, run_dir, case.as_ref(), case_dir.as_deref());
     metrics(&mut html, &summary);
+    centreline(&mut html, run_dir, &summary)?;
     poses(&mut html, run_dir, &summary)?;
     if run_dir.join("loss.png").exists() {
         html.push_str("<h2>Training loss</h2>");
@@ -236,6 +237,42 @@ fn metrics(html: &mut String, summary: &Value) {
         metrics_rows(html, "prior alone", &summary["prior_metrics"]);
     }
     html.push_str("</table><p>Definitions: docs/METRICS.md (CD sum = the paper's convention); ∞: the surface has no point in that region.</p>");
+}
+
+/// The centreline graph: lengths, scores against the true tree, and the found / missed picture.
+fn centreline(html: &mut String, run_dir: &Path, summary: &Value) -> Result<()> {
+    let c = &summary["centreline"];
+    if c.is_null() {
+        return Ok(());
+    }
+    let _ = write!(
+        html,
+        "<h2>Centreline</h2><p><code>centreline.swc</code> and <code>centreline.vtp</code> (3D Slicer, ParaView, VMTK):          {} nodes, {} mm in all, {} mm on new vessels (SWC type 4; type 3 = prior).</p>",
+        c["nodes"],
+        num(&c["length_mm"]),
+        num(&c["new_length_mm"])
+    );
+    let s = &c["scores"];
+    if !s.is_null() {
+        let _ = write!(
+            html,
+            "<table><tr><th>missing length (mm)</th><th>recall</th><th>new length (mm)</th><th>precision</th>             <th>radius error (mm)</th><th>radius bias (mm)</th></tr><tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr></table>             <p>Recall: share of the true missing vessels' centreline within their radius + 0.5 mm of the completed centreline;              precision: share of the new centreline that close to a true vessel (docs/METRICS.md).</p>",
+            num(&s["missing_length_mm"]),
+            num(&s["recall"]),
+            num(&s["new_length_mm"]),
+            num(&s["precision"]),
+            num(&s["radius_error_mm"]),
+            num(&s["radius_bias_mm"])
+        );
+    }
+    let picture = run_dir.join("centreline.png");
+    if picture.exists() {
+        html.push_str(
+            "<p class=\"key\"><span style=\"background:#28a046\">missing vessel found</span>              <span style=\"background:#eb8c14\">missing vessel missed</span>              <span style=\"background:#c828c8\">new branch on no true vessel</span>              <span style=\"background:#aaaaaa\">completed centreline</span></p>",
+        );
+        html.push_str(&png_tag(&picture, "true missing vessels found and missed, false new branches")?);
+    }
+    Ok(())
 }
 
 /// Learned pose corrections (`poses.json`) and, for a synthetic case, their errors.

@@ -153,6 +153,11 @@ fn cell_metrics(summary: &RunSummary) -> BTreeMap<String, Option<f64>> {
         metrics.insert("missing_surface_within_1mm".into(), c.missing_surface_within_1mm.and_then(finite));
         metrics.insert("false_surface".into(), finite(c.false_surface));
     }
+    if let Some(c) = &summary.centreline.scores {
+        metrics.insert("centreline_recall".into(), finite(c.recall));
+        metrics.insert("centreline_precision".into(), finite(c.precision));
+        metrics.insert("centreline_radius_error_mm".into(), finite(c.radius_error_mm));
+    }
     // The untouched prior mesh, scored the same way, for comparison.
     let p = summary.prior_metrics.as_ref();
     put(&mut metrics, "untouched_prior_", p.map(|m| &m.overall));

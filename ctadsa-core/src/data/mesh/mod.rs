@@ -6,6 +6,7 @@ pub mod marching;
 pub mod render_png;
 pub mod sample;
 pub mod split;
+pub mod tubes;
 pub mod voxelize;
 
 use std::collections::HashMap;

@@ -1,11 +1,19 @@
 //! Vessel trees: centrelines with radii (mm), as in SWC files.
 
 pub mod gaussians;
+pub mod graph;
 pub mod prior;
 pub mod procedural;
 pub mod swc;
+pub mod vtp;
 
 use glam::DVec3;
+
+/// SWC type of a centreline node on a vessel the prior (CTA) already had — the type BraVa's
+/// trees use for every vessel.
+pub const KIND_PRIOR_VESSEL: i32 = 3;
+/// SWC type of a centreline node on a vessel the completion added.
+pub const KIND_NEW_VESSEL: i32 = 4;
 
 /// One centreline node.
 #[derive(Debug, Clone, Copy, PartialEq)]

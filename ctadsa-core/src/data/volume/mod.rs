@@ -3,6 +3,7 @@
 pub mod edt;
 pub mod nifti_io;
 pub mod rasterize;
+pub mod skeleton;
 
 use glam::{DMat4, DVec3, DVec4};
 use serde::{Deserialize, Serialize};
@@ -181,6 +182,16 @@ impl<T: Copy + Default> Volume<T> {
 }
 
 impl Volume<u8> {
+    /// Whether the voxel containing `p` (mm) is set; false outside the grid.
+    pub fn is_set_at(&self, p: DVec3) -> bool {
+        let g = self.grid;
+        let ijk = [0, 1, 2].map(|a| ((p[a] - g.origin_mm[a]) / g.spacing_mm[a]).floor());
+        if ijk.iter().zip(g.dims).any(|(&v, d)| !(v >= 0.0 && v < d as f64)) {
+            return false;
+        }
+        self.get(ijk[0] as usize, ijk[1] as usize, ijk[2] as usize) != 0
+    }
+
     /// Number of non-zero voxels.
     pub fn count_nonzero(&self) -> usize {
         self.data.iter().filter(|&&v| v != 0).count()
