@@ -309,12 +309,16 @@ fn write_centreline_of(
     truth: Option<&CaseTruth>,
 ) -> Result<CentrelineSummary> {
     let above_level = completed_solid(volume, surface.level, None);
+    let voxelised;
     let prior_voxels = match (&surface.kept_prior, prior) {
-        (Some(kept), _) => Some(kept.clone()),
-        (None, Some(p)) => Some(prior_solid(p, volume)),
+        (Some(kept), _) => Some(kept),
+        (None, Some(p)) => {
+            voxelised = prior_solid(p, volume);
+            Some(&voxelised)
+        }
         (None, None) => None,
     };
-    let prior_part = prior.zip(prior_voxels.as_ref()).map(|(surface, voxels)| SolidPart { voxels, surface });
+    let prior_part = prior.zip(prior_voxels).map(|(surface, voxels)| SolidPart { voxels, surface });
     let extracted = SolidPart { voxels: &above_level, surface: &surface.extracted };
     let params = SkeletonParams {
         scale: out.centreline_scale,
