@@ -1,108 +1,87 @@
-//! Glue from backend tensors to the CPU kernels: read the inputs to host memory, run the kernel,
-//! and write the result back as a tensor of the same backend. Used by the NdArray backend.
+//! Glue from NdArray tensors to the CPU kernels: borrow the inputs in place (copy only where a
+//! tensor is not contiguous f32), run the kernel, and write the result back as a tensor.
 
-use burn::backend::{Backend, TensorMetadata, read_sync, tensor::FloatTensor};
+#![allow(deprecated)] // burn-ndarray is deprecated in burn 0.22 in favour of burn-flex.
+
+use burn::backend::ops::FloatTensorOps;
+use burn::backend::{NdArray, TensorMetadata, tensor::FloatTensor};
 use burn::tensor::TensorData;
 
 use crate::VoxelGrid;
 use crate::cpu::{self, HostGaussians};
+use crate::ndarray_host::with_host;
 use crate::ops::{RenderGrads, RenderSetup};
 
-/// Reads a float tensor into a `Vec<f32>`. The tensors come from this crate's own checked
-/// entry points, so a failure here is a backend fault, not bad user input.
-fn to_vec<B: Backend>(t: FloatTensor<B>) -> Vec<f32> {
-    read_sync(B::float_into_data(t))
-        .expect("reading a CPU tensor cannot fail")
-        .convert::<f32>()
-        .try_to_vec::<f32>()
-        .expect("converted to f32")
+fn from_vec(v: Vec<f32>, shape: Vec<usize>, like: &FloatTensor<NdArray>) -> FloatTensor<NdArray> {
+    NdArray::float_from_data(TensorData::new(v, shape), &like.device())
 }
 
-fn from_vec<B: Backend>(v: Vec<f32>, shape: Vec<usize>, device: &B::Device) -> FloatTensor<B> {
-    B::float_from_data(TensorData::new(v, shape), device)
+/// The Gaussians' tensors, borrowed as host slices for the duration of `f`.
+struct Inputs<'a> {
+    means: &'a FloatTensor<NdArray>,
+    scales: &'a FloatTensor<NdArray>,
+    rotations: &'a FloatTensor<NdArray>,
+    densities: &'a FloatTensor<NdArray>,
 }
 
-struct Owned {
-    means: Vec<f32>,
-    scales: Vec<f32>,
-    rotations: Vec<f32>,
-    densities: Vec<f32>,
-}
-
-impl Owned {
-    fn read<B: Backend>(
-        means: FloatTensor<B>,
-        scales: FloatTensor<B>,
-        rotations: FloatTensor<B>,
-        densities: FloatTensor<B>,
-    ) -> Self {
-        Self {
-            means: to_vec::<B>(means),
-            scales: to_vec::<B>(scales),
-            rotations: to_vec::<B>(rotations),
-            densities: to_vec::<B>(densities),
-        }
-    }
-
-    fn host(&self) -> HostGaussians<'_> {
-        HostGaussians {
-            means: &self.means,
-            scales: &self.scales,
-            rotations: &self.rotations,
-            densities: &self.densities,
-        }
+impl Inputs<'_> {
+    fn with<R>(&self, f: impl FnOnce(&HostGaussians<'_>) -> R) -> R {
+        with_host(self.means, |means| {
+            with_host(self.scales, |scales| {
+                with_host(self.rotations, |rotations| {
+                    with_host(self.densities, |densities| f(&HostGaussians { means, scales, rotations, densities }))
+                })
+            })
+        })
     }
 }
 
 /// Forward render through the CPU kernels.
-pub fn render<B: Backend>(
-    means: FloatTensor<B>,
-    scales: FloatTensor<B>,
-    rotations: FloatTensor<B>,
-    densities: FloatTensor<B>,
+pub fn render(
+    means: FloatTensor<NdArray>,
+    scales: FloatTensor<NdArray>,
+    rotations: FloatTensor<NdArray>,
+    densities: FloatTensor<NdArray>,
     setup: &RenderSetup,
-) -> FloatTensor<B> {
-    let device = means.device();
-    let g = Owned::read::<B>(means, scales, rotations, densities);
-    let image = cpu::render(&g.host(), &setup.views, setup.k_sigma);
+) -> FloatTensor<NdArray> {
+    let inputs = Inputs { means: &means, scales: &scales, rotations: &rotations, densities: &densities };
+    let image = inputs.with(|g| cpu::render(g, &setup.views, setup.k_sigma));
     let (w, h) = setup.image_size();
-    from_vec::<B>(image, vec![setup.views.len(), h as usize, w as usize], &device)
+    from_vec(image, vec![setup.views.len(), h as usize, w as usize], &means)
 }
 
 /// Backward render through the CPU kernels.
-pub fn render_backward<B: Backend>(
-    means: FloatTensor<B>,
-    scales: FloatTensor<B>,
-    rotations: FloatTensor<B>,
-    densities: FloatTensor<B>,
-    grad_image: FloatTensor<B>,
+pub fn render_backward(
+    means: FloatTensor<NdArray>,
+    scales: FloatTensor<NdArray>,
+    rotations: FloatTensor<NdArray>,
+    densities: FloatTensor<NdArray>,
+    grad_image: FloatTensor<NdArray>,
     setup: &RenderSetup,
-) -> RenderGrads<B> {
-    let device = means.device();
+) -> RenderGrads<NdArray> {
     let n = means.shape()[0];
-    let g = Owned::read::<B>(means, scales, rotations, densities);
-    let grad = to_vec::<B>(grad_image);
-    let out = cpu::render_backward(&g.host(), &setup.views, setup.k_sigma, &grad);
+    let inputs = Inputs { means: &means, scales: &scales, rotations: &rotations, densities: &densities };
+    let out =
+        inputs.with(|g| with_host(&grad_image, |grad| cpu::render_backward(g, &setup.views, setup.k_sigma, grad)));
     RenderGrads {
-        means: from_vec::<B>(out.means, vec![n, 3], &device),
-        scales: from_vec::<B>(out.scales, vec![n, 3], &device),
-        rotations: from_vec::<B>(out.rotations, vec![n, 4], &device),
-        densities: from_vec::<B>(out.densities, vec![n], &device),
-        screen_stats: from_vec::<B>(out.screen_stats, vec![n, 2], &device),
+        means: from_vec(out.means, vec![n, 3], &means),
+        scales: from_vec(out.scales, vec![n, 3], &means),
+        rotations: from_vec(out.rotations, vec![n, 4], &means),
+        densities: from_vec(out.densities, vec![n], &means),
+        screen_stats: from_vec(out.screen_stats, vec![n, 2], &means),
     }
 }
 
 /// Voxelisation through the CPU kernel.
-pub fn voxelize<B: Backend>(
-    means: FloatTensor<B>,
-    scales: FloatTensor<B>,
-    rotations: FloatTensor<B>,
-    densities: FloatTensor<B>,
+pub fn voxelize(
+    means: FloatTensor<NdArray>,
+    scales: FloatTensor<NdArray>,
+    rotations: FloatTensor<NdArray>,
+    densities: FloatTensor<NdArray>,
     grid: &VoxelGrid,
     k_sigma: f32,
-) -> FloatTensor<B> {
-    let device = means.device();
-    let g = Owned::read::<B>(means, scales, rotations, densities);
-    let volume = cpu::voxelize(&g.host(), grid, k_sigma);
-    from_vec::<B>(volume, grid.dims.map(|d| d as usize).to_vec(), &device)
+) -> FloatTensor<NdArray> {
+    let inputs = Inputs { means: &means, scales: &scales, rotations: &rotations, densities: &densities };
+    let volume = inputs.with(|g| cpu::voxelize(g, grid, k_sigma));
+    from_vec(volume, grid.dims.map(|d| d as usize).to_vec(), &means)
 }

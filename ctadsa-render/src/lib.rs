@@ -12,6 +12,7 @@ pub mod geometry;
 pub mod gpu;
 mod grid;
 mod host_backend;
+pub mod ndarray_host;
 pub mod ops;
 /// f64 reference implementations: the test oracle of the kernels.
 #[doc(hidden)]

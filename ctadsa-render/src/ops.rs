@@ -89,7 +89,7 @@ impl XrayBackend for NdArray {
         _screen_probe: FloatTensor<Self>,
         setup: RenderSetup,
     ) -> FloatTensor<Self> {
-        crate::host_backend::render::<Self>(means, scales, rotations, densities, &setup)
+        crate::host_backend::render(means, scales, rotations, densities, &setup)
     }
 
     fn xray_render_backward(
@@ -100,7 +100,7 @@ impl XrayBackend for NdArray {
         grad_image: FloatTensor<Self>,
         setup: RenderSetup,
     ) -> RenderGrads<Self> {
-        crate::host_backend::render_backward::<Self>(means, scales, rotations, densities, grad_image, &setup)
+        crate::host_backend::render_backward(means, scales, rotations, densities, grad_image, &setup)
     }
 
     fn xray_voxelize(
@@ -111,6 +111,6 @@ impl XrayBackend for NdArray {
         grid: VoxelGrid,
         k_sigma: f32,
     ) -> FloatTensor<Self> {
-        crate::host_backend::voxelize::<Self>(means, scales, rotations, densities, &grid, k_sigma)
+        crate::host_backend::voxelize(means, scales, rotations, densities, &grid, k_sigma)
     }
 }
