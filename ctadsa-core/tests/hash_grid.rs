@@ -71,6 +71,32 @@ fn op_gradients_match_tensor_op_autodiff() {
     }
 }
 
+/// The table gradient's buffer is pooled between backward passes (ndarray): a gradient the
+/// caller still holds is never written by a later pass, and a reused buffer starts from zero.
+#[test]
+fn pooled_table_gradient_is_zeroed_and_never_overwrites_a_held_one() {
+    let device = Device::ndarray().autodiff();
+    let g = grid(&device);
+    let u = points(150, &device);
+    let w = Tensor::<2>::random([150, config().output_dim()], Distribution::Uniform(-1.0, 1.0), &device);
+    let table_grad = |w: &Tensor<2>| {
+        let grads = (g.forward(u.clone()) * w.clone()).sum().backward();
+        g.tables.val().grad(&grads).expect("the tables get a gradient")
+    };
+    let first = table_grad(&w);
+    let expected = host_vec(first.clone());
+    assert!(expected.iter().any(|v| *v != 0.0));
+    // A different upstream gradient while `first` is alive: a fresh buffer, `first` untouched.
+    let other = table_grad(&(w.clone() * 3.0));
+    assert_eq!(host_vec(first.clone()), expected);
+    assert_ne!(host_vec(other.clone()), expected);
+    drop((first, other));
+    // Nobody holds the pooled buffer now: it is reused, and must have been cleared.
+    for _ in 0..2 {
+        assert_eq!(host_vec(table_grad(&w)), expected);
+    }
+}
+
 #[cfg(feature = "wgpu")]
 #[test]
 fn wgpu_kernels_match_cpu() {

@@ -69,74 +69,105 @@ fn corners(lv: &Level, mask: i64, u: [f32; 3]) -> ([usize; 8], [f32; 8], [[f32; 
 }
 
 /// Encodes `u` (`[N·3]`) with `tables` (`[F · L·T]`, feature-major): `[N · L·F]`.
+///
+/// Level-major: one task per level reads that level's `F × T` table slice for every point, so
+/// the slice (4 MB at T = 2¹⁹) stays in cache while the points' corners hit it; a point-major
+/// loop would walk all levels' tables (67 MB) for every point and miss on nearly every corner.
 pub fn encode(c: &HashGridConfig, u: &[f32], tables: &[f32]) -> Vec<f32> {
     let lv = levels(c);
     let (l_n, f_n) = (c.levels, c.features);
     let stride = c.levels * c.table_size() as usize;
     let mask = c.table_size() - 1;
     let n = u.len() / 3;
+    // [L][N·F], then transposed to [N][L·F].
+    let by_level: Vec<Vec<f32>> = lv
+        .par_iter()
+        .map(|level| {
+            let mut o = vec![0.0f32; n * f_n];
+            for (i, oi) in o.chunks_exact_mut(f_n).enumerate() {
+                let (rows, w, _) = corners(level, mask, [u[3 * i], u[3 * i + 1], u[3 * i + 2]]);
+                for (f, v) in oi.iter_mut().enumerate() {
+                    let t = &tables[f * stride..(f + 1) * stride];
+                    *v = (0..8).map(|k| w[k] * t[rows[k]]).sum();
+                }
+            }
+            o
+        })
+        .collect();
     let mut out = vec![0.0f32; n * l_n * f_n];
     out.par_chunks_mut(l_n * f_n).enumerate().for_each(|(i, o)| {
-        let p = [u[3 * i], u[3 * i + 1], u[3 * i + 2]];
-        for (l, level) in lv.iter().enumerate() {
-            let (rows, w, _) = corners(level, mask, p);
-            for f in 0..f_n {
-                let t = &tables[f * stride..(f + 1) * stride];
-                o[l * f_n + f] = (0..8).map(|k| w[k] * t[rows[k]]).sum();
-            }
+        for (l, level) in by_level.iter().enumerate() {
+            o[l * f_n..(l + 1) * f_n].copy_from_slice(&level[i * f_n..(i + 1) * f_n]);
         }
     });
     out
 }
 
-/// Gradients of `Σ grad · encode(u, tables)` with respect to `u` (`[N·3]`) and `tables`.
-pub fn encode_backward(c: &HashGridConfig, u: &[f32], tables: &[f32], grad: &[f32]) -> (Vec<f32>, Vec<f32>) {
+/// Gradients of `Σ grad · encode(u, tables)` with respect to `u` (`[N·3]`) and `tables`
+/// (written into `grad_tables`, `[F · L·T]`, which must be zero on entry).
+///
+/// One task per level (level-major, as [`encode`]): it scatters the level's table gradient —
+/// a level's rows have no other writer, so there are no atomics and each entry sums its points in
+/// index order, the same result for any thread count — and collects the level's share of the
+/// position gradient, which is then summed over levels in level order per point.
+pub fn encode_backward_into(
+    c: &HashGridConfig,
+    u: &[f32],
+    tables: &[f32],
+    grad: &[f32],
+    grad_tables: &mut [f32],
+) -> Vec<f32> {
     let lv = levels(c);
     let (l_n, f_n) = (c.levels, c.features);
     let stride = c.levels * c.table_size() as usize;
     let mask = c.table_size() - 1;
     let n = u.len() / 3;
-    let mut grad_u = vec![0.0f32; 3 * n];
-    grad_u.par_chunks_mut(3).enumerate().for_each(|(i, gu)| {
-        let p = [u[3 * i], u[3 * i + 1], u[3 * i + 2]];
-        for (l, level) in lv.iter().enumerate() {
-            let (rows, _, dw) = corners(level, mask, p);
-            for f in 0..f_n {
-                let g = grad[(i * l_n + l) * f_n + f];
-                if g == 0.0 {
-                    continue;
-                }
-                let t = &tables[f * stride..(f + 1) * stride];
-                for k in 0..8 {
-                    let v = g * t[rows[k]];
-                    for d in 0..3 {
-                        gu[d] += dw[k][d] * v;
+    let t_size = c.table_size() as usize;
+    let mut by_level: Vec<Vec<&mut [f32]>> = (0..l_n).map(|_| Vec::with_capacity(f_n)).collect();
+    for (chunk, rows) in grad_tables.chunks_mut(t_size).enumerate() {
+        by_level[chunk % l_n].push(rows); // chunk = f · L + l: pushed in feature order
+    }
+    let grad_u_by_level: Vec<Vec<f32>> = by_level
+        .into_par_iter()
+        .zip(lv.par_iter())
+        .enumerate()
+        .map(|(l, (mut features, level))| {
+            let mut gu = vec![0.0f32; 3 * n];
+            for (i, gui) in gu.chunks_exact_mut(3).enumerate() {
+                let (rows, w, dw) = corners(level, mask, [u[3 * i], u[3 * i + 1], u[3 * i + 2]]);
+                for (f, slice) in features.iter_mut().enumerate() {
+                    let g = grad[(i * l_n + l) * f_n + f];
+                    if g == 0.0 {
+                        continue;
+                    }
+                    let t = &tables[f * stride..(f + 1) * stride];
+                    for k in 0..8 {
+                        slice[rows[k] - level.base] += w[k] * g;
+                        let v = g * t[rows[k]];
+                        for d in 0..3 {
+                            gui[d] += dw[k][d] * v;
+                        }
                     }
                 }
             }
-        }
-    });
-    // The table gradient, one task per level: a level's rows (for every feature) have no other
-    // writer, so there are no atomics and each entry sums its points in index order — the
-    // same result for any thread count.
-    let t_size = c.table_size() as usize;
-    let mut grad_t = vec![0.0f32; tables.len()];
-    let mut by_level: Vec<Vec<&mut [f32]>> = (0..l_n).map(|_| Vec::with_capacity(f_n)).collect();
-    for (chunk, rows) in grad_t.chunks_mut(t_size).enumerate() {
-        by_level[chunk % l_n].push(rows); // chunk = f · L + l: pushed in feature order
-    }
-    by_level.into_par_iter().zip(lv.par_iter()).enumerate().for_each(|(l, (mut features, level))| {
-        for i in 0..n {
-            let p = [u[3 * i], u[3 * i + 1], u[3 * i + 2]];
-            let (rows, w, _) = corners(level, mask, p);
-            for (f, slice) in features.iter_mut().enumerate() {
-                let g = grad[(i * l_n + l) * f_n + f];
-                for k in 0..8 {
-                    slice[rows[k] - level.base] += w[k] * g;
-                }
+            gu
+        })
+        .collect();
+    let mut grad_u = vec![0.0f32; 3 * n];
+    grad_u.par_chunks_mut(3).enumerate().for_each(|(i, gu)| {
+        for level in &grad_u_by_level {
+            for d in 0..3 {
+                gu[d] += level[3 * i + d];
             }
         }
     });
+    grad_u
+}
+
+/// [`encode_backward_into`] with a fresh table gradient: `(∂/∂u, ∂/∂tables)`.
+pub fn encode_backward(c: &HashGridConfig, u: &[f32], tables: &[f32], grad: &[f32]) -> (Vec<f32>, Vec<f32>) {
+    let mut grad_t = vec![0.0f32; tables.len()];
+    let grad_u = encode_backward_into(c, u, tables, grad, &mut grad_t);
     (grad_u, grad_t)
 }
 

@@ -17,7 +17,12 @@ use burn::backend::{
     Autodiff, AutodiffBackend, Backend, Dispatch, ExtensionType, NdArray, TensorMetadata, backend_extension,
     tensor::FloatTensor,
 };
+use std::sync::Mutex;
+
+use burn::backend::ndarray::NdArrayTensor;
 use burn::tensor::{Tensor, TensorData};
+use ndarray::{ArcArray, IxDyn};
+use rayon::prelude::*;
 
 use super::hash_grid::HashGridConfig;
 use crate::method::ndarray_host::with_host;
@@ -61,14 +66,42 @@ impl HashEncodeBackend for NdArray {
     ) -> HashGrads<Self> {
         let device = u.device();
         let n = u.shape()[0];
-        let tshape = tables.shape();
-        let (gu, gt) =
-            with_host(&u, |u| with_host(&tables, |t| with_host(&grad, |g| cpu::encode_backward(&config, u, t, g))));
+        let mut grad_t = table_grad_buffer(&tables.shape());
+        let gu = {
+            let slice = grad_t.as_slice_mut().expect("a fresh or pooled buffer is contiguous");
+            with_host(&u, |u| {
+                with_host(&tables, |t| with_host(&grad, |g| cpu::encode_backward_into(&config, u, t, g, slice)))
+            })
+        };
+        if let Ok(mut pool) = TABLE_GRAD_POOL.lock() {
+            *pool = Some(grad_t.clone());
+        }
         HashGrads {
             u: Self::float_from_data(TensorData::new(gu, [n, 3]), &device),
-            tables: Self::float_from_data(TensorData::new(gt, tshape), &device),
+            tables: NdArrayTensor::from(grad_t),
         }
     }
+}
+
+/// The table gradient's buffer, kept between steps: at paper scale it is 67 MB, and a fresh
+/// allocation every step is unmapped on drop and faulted back in page by page on the next
+/// (≈ 15 % of the step). The pool keeps one buffer; it is reused only once burn has dropped its
+/// share (the optimizer consumed the gradient), so no tensor burn still holds is overwritten.
+static TABLE_GRAD_POOL: Mutex<Option<ArcArray<f32, IxDyn>>> = Mutex::new(None);
+
+/// A zeroed buffer of `shape`: the pooled one when nobody else holds it, else a new one.
+fn table_grad_buffer(shape: &burn::tensor::Shape) -> ArcArray<f32, IxDyn> {
+    let dims: Vec<usize> = shape.iter().copied().collect();
+    let pooled = TABLE_GRAD_POOL.lock().ok().and_then(|mut pool| pool.take());
+    if let Some(mut buffer) = pooled
+        && buffer.shape() == dims.as_slice()
+        && buffer.is_unique()
+        && let Some(values) = buffer.as_slice_mut()
+    {
+        values.par_chunks_mut(1 << 16).for_each(|c| c.fill(0.0));
+        return buffer;
+    }
+    ArcArray::zeros(IxDyn(&dims))
 }
 
 #[cfg(feature = "wgpu")]
