@@ -8,6 +8,7 @@ use burn::tensor::{Device, Tensor, TensorData};
 use serde::{Deserialize, Serialize};
 
 use super::hash_grid::{HashGrid, HashGridConfig};
+use super::linear_op::fused_linear;
 use super::uniform_tensor;
 use burn::module::Param;
 
@@ -46,6 +47,15 @@ pub struct FieldFrame {
     pub min_mm: [f32; 3],
     pub size_mm: [f32; 3],
     pub output: OutputActivation,
+}
+
+/// `act(x·W + b)` of a burn `Linear` through the fused op (its parameters, its gradients).
+fn fused(layer: &Linear, x: Tensor<2>, relu: bool) -> Tensor<2> {
+    let bias = match &layer.bias {
+        Some(b) => b.val(),
+        None => Tensor::zeros([layer.weight.dims()[1]], &x.device()),
+    };
+    fused_linear(x, layer.weight.val(), bias, relu)
 }
 
 /// Hash grid + MLP.
@@ -111,9 +121,9 @@ impl OpacityField {
         let u = (positions_mm - min) * inv;
         let mut x = self.grid.forward(u);
         for layer in &self.hidden {
-            x = relu(layer.forward(x));
+            x = fused(layer, x, true);
         }
-        let y = self.output.forward(x).reshape([n]);
+        let y = fused(&self.output, x, false).reshape([n]);
         match self.frame.output {
             OutputActivation::Relu => relu(y),
             OutputActivation::Softplus => softplus(y, 1.0),

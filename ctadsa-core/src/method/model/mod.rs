@@ -4,6 +4,7 @@
 pub mod field;
 pub mod hash_grid;
 pub mod hash_op;
+pub mod linear_op;
 
 use burn::module::{Module, Param};
 use burn::tensor::activation::sigmoid;
