@@ -8,18 +8,16 @@ use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use crate::data::case::images::Image;
 use crate::stats::percentile;
 
-/// The 1-D Gaussian taps (11, σ = 1.5), normalised to sum 1; the 2-D window is their outer
-/// product.
-pub fn gaussian_taps() -> [f32; 11] {
-    let g: Vec<f64> = (0..11).map(|i| (-((i as f64 - 5.0).powi(2)) / (2.0 * 1.5 * 1.5)).exp()).collect();
-    let s: f64 = g.iter().sum();
-    std::array::from_fn(|i| (g[i] / s) as f32)
+/// Separable 11 × 11 Gaussian blur (σ = 1.5 px) of `[V, H, W]` images with zero padding: the
+/// SSIM window, one backend op ([`crate::method::blur_op`]).
+pub fn gaussian_blur(x: Tensor<3>) -> Tensor<3> {
+    crate::method::blur_op::window_blur(x)
 }
 
-/// Separable 11 × 11 Gaussian blur of `[V, H, W]` images with zero padding, as shifted slices
-/// (cheap forward and backward on every backend; burn-ndarray's conv2d backward is slow).
-pub fn gaussian_blur(x: Tensor<3>) -> Tensor<3> {
-    let taps = gaussian_taps();
+/// The same blur as shifted slices of plain tensor operations (autodiff through them): the
+/// op's test oracle.
+pub fn gaussian_blur_sliced(x: Tensor<3>) -> Tensor<3> {
+    let taps = crate::method::blur_op::taps();
     let [v, h, w] = x.dims();
     let device = x.device();
     let zw = Tensor::<3>::zeros([v, h, 5], &device);

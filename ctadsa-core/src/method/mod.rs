@@ -2,6 +2,7 @@
 //! views and the prior, the working box, losses, densification, the optimiser, pose refinement
 //! and the training loop.
 
+pub mod blur_op;
 pub mod densify;
 pub mod init;
 pub mod loss;

@@ -1,0 +1,81 @@
+//! CubeCL kernel of the window blur: one unit per output pixel and pass (along W, then H).
+
+use burn::backend::ops::FloatTensorOps;
+use burn::backend::{FloatDType, TensorMetadata};
+use burn::tensor::{DType, TensorData};
+use burn_cubecl::cubecl::prelude::*;
+use burn_cubecl::kernel::into_contiguous;
+use burn_cubecl::tensor::CubeTensor;
+use burn_cubecl::{CubeBackend, cubecl};
+
+use super::cpu::RADIUS;
+
+/// `step` = 1 blurs along W (neighbours in the same row), `w` along H; `extent` is the row
+/// length or the image height, `coord` the pixel's column or row.
+#[cube(launch)]
+fn blur_pass_kernel(
+    input: &Tensor<f32>,
+    taps: &Tensor<f32>,
+    output: &mut Tensor<f32>,
+    len: u32,
+    h: u32,
+    w: u32,
+    along_w: u32,
+) {
+    let id = ABSOLUTE_POS;
+    if id >= len as usize {
+        terminate!();
+    }
+    let col = id % (w as usize);
+    let row = (id / (w as usize)) % (h as usize);
+    let mut coord = row;
+    let mut extent = h as usize;
+    let mut step = w as usize;
+    if along_w == 1u32 {
+        coord = col;
+        extent = w as usize;
+        step = 1usize;
+    }
+    let mut acc = 0.0f32;
+    for k in 0..11u32 {
+        let kk = k as usize;
+        // source coordinate coord + k − RADIUS, inside [0, extent)
+        if coord + kk >= 5usize && coord + kk < extent + 5usize {
+            let src = id + (kk * step) - 5usize * step;
+            acc += taps[kk] * input[src];
+        }
+    }
+    output[id] = acc;
+}
+
+/// The blur on the GPU: `[V, H, W]`.
+pub fn blur(images: CubeTensor, taps: &[f32; 2 * RADIUS + 1]) -> CubeTensor {
+    let images = if images.dtype() == DType::F32 { images } else { CubeBackend::float_cast(images, FloatDType::F32) };
+    let images = into_contiguous(images);
+    let shape = images.shape();
+    let (h, w) = (shape[1], shape[2]);
+    let len = shape.num_elements();
+    let mid = CubeBackend::float_zeros(shape.clone(), &images.device, FloatDType::F32);
+    let out = CubeBackend::float_zeros(shape, &images.device, FloatDType::F32);
+    if len == 0 {
+        return out;
+    }
+    let taps = CubeBackend::float_from_data(TensorData::new(taps.to_vec(), [taps.len()]), &images.device);
+    let dim = CubeDim::new_1d(64);
+    let count = cubecl::calculate_cube_count_elemwise(&images.client, len, dim);
+    for (src, dst, along_w) in [(&images, &mid, 1u32), (&mid, &out, 0u32)] {
+        blur_pass_kernel::launch(
+            &images.client,
+            count.clone(),
+            dim,
+            src.clone().into_tensor_arg(),
+            taps.clone().into_tensor_arg(),
+            dst.clone().into_tensor_arg(),
+            len as u32,
+            h as u32,
+            w as u32,
+            along_w,
+        );
+    }
+    out
+}

@@ -1,0 +1,86 @@
+//! The field's MLP layer op and the SSIM window-blur op on wgpu against the CPU (when a wgpu
+//! adapter exists; `CTADSA_REQUIRE_WGPU=1` makes a missing adapter a failure).
+#![cfg(feature = "wgpu")]
+#![allow(deprecated)] // burn-ndarray is deprecated in burn 0.22; it is the CPU backend the tests use.
+
+use burn::tensor::{Device, Tensor, TensorData};
+use ctadsa_core::method::blur_op::window_blur;
+use ctadsa_core::method::model::host_vec;
+use ctadsa_core::method::model::linear_op::fused_linear;
+
+fn values(len: usize, seed: u64) -> Vec<f32> {
+    let mut s = seed;
+    (0..len)
+        .map(|_| {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (s >> 40) as f32 / (1u64 << 23) as f32 - 1.0
+        })
+        .collect()
+}
+
+fn wgpu_or_skip(what: &str) -> Option<Device> {
+    match ctadsa_render::gpu::probe::wgpu_adapter() {
+        Ok(name) => {
+            eprintln!("wgpu adapter: {name}");
+            Some(Device::wgpu(burn::tensor::DeviceKind::DefaultDevice))
+        }
+        Err(e) if std::env::var("CTADSA_REQUIRE_WGPU").is_ok_and(|v| v == "1") => {
+            panic!("CTADSA_REQUIRE_WGPU=1 but {e}")
+        }
+        Err(e) => {
+            eprintln!("SKIPPED: {what} wgpu parity not run: {e}");
+            None
+        }
+    }
+}
+
+fn assert_close(name: &str, a: &[f32], b: &[f32]) {
+    assert_eq!(a.len(), b.len(), "{name}");
+    let worst = a.iter().zip(b).map(|(p, q)| (p - q).abs()).fold(0.0f32, f32::max);
+    let scale = a.iter().map(|q| q.abs()).fold(0.0f32, f32::max).max(1.0);
+    assert!(worst <= 1e-4 * scale, "{name}: wgpu differs by {worst} (scale {scale})");
+}
+
+#[test]
+fn window_blur_on_wgpu_matches_cpu() {
+    let Some(gpu) = wgpu_or_skip("window blur") else { return };
+    let [v, h, w] = [2, 19, 27];
+    let (x, up) = (values(v * h * w, 1), values(v * h * w, 2));
+    let run = |device: Device| {
+        let device = device.autodiff();
+        let x = Tensor::<3>::from_data(TensorData::new(x.clone(), [v, h, w]), &device).require_grad();
+        let up = Tensor::<3>::from_data(TensorData::new(up.clone(), [v, h, w]), &device);
+        let out = window_blur(x.clone());
+        let grads = (out.clone() * up).sum().backward();
+        (host_vec(out), host_vec(x.grad(&grads).unwrap()))
+    };
+    let (a, b) = (run(Device::ndarray()), run(gpu));
+    assert_close("blur forward", &a.0, &b.0);
+    assert_close("blur backward", &a.1, &b.1);
+}
+
+#[test]
+fn fused_linear_on_wgpu_matches_cpu() {
+    let Some(gpu) = wgpu_or_skip("fused linear") else { return };
+    let (n, i, o) = (97, 12, 8);
+    let (x, wt, b, up) = (values(n * i, 3), values(i * o, 4), values(o, 5), values(n * o, 6));
+    let run = |device: Device| {
+        let device = device.autodiff();
+        let x = Tensor::<2>::from_data(TensorData::new(x.clone(), [n, i]), &device).require_grad();
+        let w = Tensor::<2>::from_data(TensorData::new(wt.clone(), [i, o]), &device).require_grad();
+        let b = Tensor::<1>::from_data(TensorData::new(b.clone(), [o]), &device).require_grad();
+        let up = Tensor::<2>::from_data(TensorData::new(up.clone(), [n, o]), &device);
+        let out = fused_linear(x.clone(), w.clone(), b.clone(), true);
+        let grads = (out.clone() * up).sum().backward();
+        [
+            host_vec(out),
+            host_vec(x.grad(&grads).unwrap()),
+            host_vec(w.grad(&grads).unwrap()),
+            host_vec(b.grad(&grads).unwrap().reshape([1, o])),
+        ]
+    };
+    let (a, b) = (run(Device::ndarray()), run(gpu));
+    for (k, name) in ["output", "x", "weight", "bias"].iter().enumerate() {
+        assert_close(name, &a[k], &b[k]);
+    }
+}
