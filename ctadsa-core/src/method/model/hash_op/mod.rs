@@ -9,17 +9,17 @@ pub mod cpu;
 #[cfg(feature = "wgpu")]
 pub mod gpu;
 
+use std::sync::Mutex;
+
 use burn::backend::autodiff::checkpoint::{base::Checkpointer, strategy::CheckpointStrategy};
 use burn::backend::autodiff::grads::Gradients;
 use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
+use burn::backend::ndarray::NdArrayTensor;
 use burn::backend::ops::FloatTensorOps;
 use burn::backend::{
     Autodiff, AutodiffBackend, Backend, Dispatch, ExtensionType, NdArray, TensorMetadata, backend_extension,
     tensor::FloatTensor,
 };
-use std::sync::Mutex;
-
-use burn::backend::ndarray::NdArrayTensor;
 use burn::tensor::{Tensor, TensorData};
 use ndarray::{ArcArray, IxDyn};
 use rayon::prelude::*;
