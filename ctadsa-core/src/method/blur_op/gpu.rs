@@ -2,13 +2,13 @@
 
 use burn::backend::ops::FloatTensorOps;
 use burn::backend::{FloatDType, TensorMetadata};
-use burn::tensor::{DType, TensorData};
+use burn::tensor::TensorData;
 use burn_cubecl::cubecl::prelude::*;
-use burn_cubecl::kernel::into_contiguous;
 use burn_cubecl::tensor::CubeTensor;
 use burn_cubecl::{CubeBackend, cubecl};
 
 use super::cpu::RADIUS;
+use crate::method::model::hash_op::gpu::prepare;
 
 /// `step` = 1 blurs along W (neighbours in the same row), `w` along H; `extent` is the row
 /// length or the image height, `coord` the pixel's column or row.
@@ -50,8 +50,7 @@ fn blur_pass_kernel(
 
 /// The blur on the GPU: `[V, H, W]`.
 pub fn blur(images: CubeTensor, taps: &[f32; 2 * RADIUS + 1]) -> CubeTensor {
-    let images = if images.dtype() == DType::F32 { images } else { CubeBackend::float_cast(images, FloatDType::F32) };
-    let images = into_contiguous(images);
+    let images = prepare(images);
     let shape = images.shape();
     let (h, w) = (shape[1], shape[2]);
     let len = shape.num_elements();

@@ -123,7 +123,8 @@ fn hash_backward_kernel(
     grad_u_levels[3 * id + 2] = gz;
 }
 
-fn prepare(t: CubeTensor) -> CubeTensor {
+/// An f32, contiguous copy of `t` (no copy when it already is), as the kernels index it.
+pub(crate) fn prepare(t: CubeTensor) -> CubeTensor {
     let t = if t.dtype() == DType::F32 { t } else { CubeBackend::float_cast(t, FloatDType::F32) };
     into_contiguous(t)
 }
