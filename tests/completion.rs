@@ -271,6 +271,38 @@ fn densification_grows_the_model_and_resumes_exactly() {
     assert_resume_is_exact(cfg, 15, "densify");
 }
 
+/// A densify call right after a step prunes by that step's densities (its field forward, one
+/// Adam step behind), and a call with no step before it by a fresh field forward.
+#[test]
+fn densify_prunes_by_the_last_steps_densities_or_a_fresh_forward() {
+    let mut cfg = tiny_config(100);
+    cfg.densify.enabled = true;
+    cfg.densify.from = 0;
+    cfg.densify.until = 1000;
+    cfg.densify.every = 1000; // no densification inside the steps
+    cfg.densify.grad_threshold = 1e9; // prune only
+    let mut t = Trainer::new(tiny_case(), cfg, Device::ndarray().autodiff()).unwrap();
+    for _ in 0..3 {
+        t.step().unwrap();
+    }
+    let below = |d: &[f32], thr: f32| d.iter().filter(|&&v| v < thr).count();
+    let before = t.host_gaussians().3;
+    t.step().unwrap();
+    let after = t.host_gaussians().3;
+    let mut sorted = before.clone();
+    sorted.sort_by(f32::total_cmp);
+    let thr = sorted[sorted.len() / 2];
+    assert_ne!(below(&before, thr), below(&after, thr), "the step moves densities across the threshold");
+    t.cfg.densify.min_density = thr as f64;
+    let plan = t.densify().unwrap();
+    assert_eq!(plan.pruned, below(&before, thr), "pruned by the last step's densities");
+    let now = t.host_gaussians().3;
+    let thr = now.iter().copied().fold(f32::INFINITY, f32::min) * 1.5;
+    t.cfg.densify.min_density = thr as f64;
+    let plan = t.densify().unwrap();
+    assert_eq!(plan.pruned, below(&now, thr), "pruned by a fresh forward");
+}
+
 /// Copies a folder tree.
 fn copy_dir(from: &std::path::Path, to: &std::path::Path) {
     std::fs::create_dir_all(to).unwrap();

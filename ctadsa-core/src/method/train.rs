@@ -191,6 +191,10 @@ pub struct Trainer {
     /// Adam of the opacity field (never edited: its 2 × 16.8 M moments at paper scale stay put).
     field_optim: ModuleOptimizer,
     pub stats: DensifyStats,
+    /// The densities of the last step's field forward (detached; one Adam step behind the
+    /// parameters), kept while densification is active so that a densify call reuses them
+    /// instead of a second field forward (at paper scale the larger part of its cost).
+    last_densities: Option<Tensor<1>>,
     /// Iterations done.
     pub iteration: usize,
     pub history: Vec<StepLog>,
@@ -300,6 +304,7 @@ impl Trainer {
             anchor,
             model: Some(model),
             stats: DensifyStats::new(n),
+            last_densities: None,
             iteration: 0,
             history: Vec::new(),
             working_box,
@@ -438,6 +443,7 @@ impl Trainer {
         let mut times = StageTimes::default();
         let clock = Instant::now();
         let densities = model.field.forward(model.means.val());
+        self.last_densities = self.densify_active().then(|| densities.clone().detach());
         let gaussians = ctadsa_render::Gaussians {
             means: model.means.val(),
             scales: model.scales(),
@@ -510,9 +516,15 @@ impl Trainer {
 
     /// Densification now (clone, split, prune), keeping parameters and Adam moments consistent.
     pub fn densify(&mut self) -> Result<densify::DensifyPlan> {
+        let last_densities = self.last_densities.take();
         let model = self.model();
         let params = model.to_init();
-        let densities: Vec<f32> = host_vec(model.valid().densities());
+        // Pruning needs only `density < min_density`, which one Adam step does not decide: the
+        // last step's densities serve when they match the model, else a fresh field forward.
+        let densities: Vec<f32> = match last_densities {
+            Some(d) if d.dims()[0] == model.len() => host_vec(d),
+            _ => host_vec(model.valid().densities()),
+        };
         let plan = densify::plan(
             &params,
             &densities,
