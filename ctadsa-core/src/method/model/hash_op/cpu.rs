@@ -44,25 +44,30 @@ fn corners(lv: &Level, mask: i64, u: [f32; 3]) -> ([usize; 8], [f32; 8], [[f32; 
         cell[d] = f as i64;
         frac[d] = p - f;
     }
+    // Per axis, the two corner offsets' index terms, weights and weight signs; a corner's
+    // values are products of one entry per axis (the same products, in the same order, as
+    // the obvious per-corner loop).
+    let hash = [1i64, HASH_P1, HASH_P2];
+    let dense_stride = [1i64, lv.r1, lv.r1 * lv.r1];
+    let term: [[i64; 2]; 3] = std::array::from_fn(|d| {
+        let c = [cell[d], cell[d] + 1];
+        if lv.dense { c.map(|v| v * dense_stride[d]) } else { c.map(|v| v.wrapping_mul(hash[d])) }
+    });
+    let a: [[f32; 2]; 3] = std::array::from_fn(|d| [1.0 - frac[d], frac[d]]);
+    const SIGN: [f32; 2] = [-1.0, 1.0];
     let mut rows = [0usize; 8];
     let mut w = [0.0f32; 8];
     let mut dw = [[0.0f32; 3]; 8];
     for k in 0..8 {
-        let o = [k & 1, (k >> 1) & 1, (k >> 2) & 1];
-        let cc = [cell[0] + o[0] as i64, cell[1] + o[1] as i64, cell[2] + o[2] as i64];
-        let idx = if lv.dense {
-            cc[0] + cc[1] * lv.r1 + cc[2] * lv.r1 * lv.r1
-        } else {
-            (cc[0] ^ cc[1].wrapping_mul(HASH_P1) ^ cc[2].wrapping_mul(HASH_P2)) & mask
-        };
+        let (x, y, z) = (k & 1, (k >> 1) & 1, (k >> 2) & 1);
+        let idx =
+            if lv.dense { term[0][x] + term[1][y] + term[2][z] } else { (term[0][x] ^ term[1][y] ^ term[2][z]) & mask };
         rows[k] = lv.base + idx as usize;
-        let a: [f32; 3] = std::array::from_fn(|d| if o[d] == 1 { frac[d] } else { 1.0 - frac[d] });
-        let s: [f32; 3] = std::array::from_fn(|d| if o[d] == 1 { 1.0 } else { -1.0 });
-        w[k] = a[0] * a[1] * a[2];
+        w[k] = a[0][x] * a[1][y] * a[2][z];
         dw[k] = [
-            s[0] * a[1] * a[2] * lv.res * inside[0],
-            a[0] * s[1] * a[2] * lv.res * inside[1],
-            a[0] * a[1] * s[2] * lv.res * inside[2],
+            SIGN[x] * a[1][y] * a[2][z] * lv.res * inside[0],
+            a[0][x] * SIGN[y] * a[2][z] * lv.res * inside[1],
+            a[0][x] * a[1][y] * SIGN[z] * lv.res * inside[2],
         ];
     }
     (rows, w, dw)
@@ -80,20 +85,8 @@ pub fn encode(c: &HashGridConfig, u: &[f32], tables: &[f32]) -> Vec<f32> {
     let mask = c.table_size() - 1;
     let n = u.len() / 3;
     // [L][N·F], then transposed to [N][L·F].
-    let by_level: Vec<Vec<f32>> = lv
-        .par_iter()
-        .map(|level| {
-            let mut o = vec![0.0f32; n * f_n];
-            for (i, oi) in o.chunks_exact_mut(f_n).enumerate() {
-                let (rows, w, _) = corners(level, mask, [u[3 * i], u[3 * i + 1], u[3 * i + 2]]);
-                for (f, v) in oi.iter_mut().enumerate() {
-                    let t = &tables[f * stride..(f + 1) * stride];
-                    *v = (0..8).map(|k| w[k] * t[rows[k]]).sum();
-                }
-            }
-            o
-        })
-        .collect();
+    let by_level: Vec<Vec<f32>> =
+        lv.par_iter().map(|level| encode_level(level, mask, u, tables, stride, f_n)).collect();
     let mut out = vec![0.0f32; n * l_n * f_n];
     out.par_chunks_mut(l_n * f_n).enumerate().for_each(|(i, o)| {
         for (l, level) in by_level.iter().enumerate() {
@@ -131,27 +124,7 @@ pub fn encode_backward_into(
         .into_par_iter()
         .zip(lv.par_iter())
         .enumerate()
-        .map(|(l, (mut features, level))| {
-            let mut gu = vec![0.0f32; 3 * n];
-            for (i, gui) in gu.chunks_exact_mut(3).enumerate() {
-                let (rows, w, dw) = corners(level, mask, [u[3 * i], u[3 * i + 1], u[3 * i + 2]]);
-                for (f, slice) in features.iter_mut().enumerate() {
-                    let g = grad[(i * l_n + l) * f_n + f];
-                    if g == 0.0 {
-                        continue;
-                    }
-                    let t = &tables[f * stride..(f + 1) * stride];
-                    for k in 0..8 {
-                        slice[rows[k] - level.base] += w[k] * g;
-                        let v = g * t[rows[k]];
-                        for d in 0..3 {
-                            gui[d] += dw[k][d] * v;
-                        }
-                    }
-                }
-            }
-            gu
-        })
+        .map(|(l, (mut features, level))| backward_level(level, l, mask, u, tables, stride, grad, l_n, &mut features))
         .collect();
     let mut grad_u = vec![0.0f32; 3 * n];
     grad_u.par_chunks_mut(3).enumerate().for_each(|(i, gu)| {
@@ -162,6 +135,57 @@ pub fn encode_backward_into(
         }
     });
     grad_u
+}
+
+/// One level of [`encode`]: `[N·F]` (compiled for AVX2 + FMA where the CPU has them).
+#[multiversion::multiversion(targets("x86_64+avx2+fma+sse4.1", "x86_64+sse4.1"))]
+fn encode_level(level: &Level, mask: i64, u: &[f32], tables: &[f32], stride: usize, f_n: usize) -> Vec<f32> {
+    let n = u.len() / 3;
+    let mut o = vec![0.0f32; n * f_n];
+    for (i, oi) in o.chunks_exact_mut(f_n).enumerate() {
+        let (rows, w, _) = corners(level, mask, [u[3 * i], u[3 * i + 1], u[3 * i + 2]]);
+        for (f, v) in oi.iter_mut().enumerate() {
+            let t = &tables[f * stride..(f + 1) * stride];
+            *v = (0..8).map(|k| w[k] * t[rows[k]]).sum();
+        }
+    }
+    o
+}
+
+/// One level of [`encode_backward_into`]: scatters into the level's per-feature gradient
+/// slices `features` and returns the level's share of `∂/∂u` (`[N·3]`).
+#[allow(clippy::too_many_arguments)]
+#[multiversion::multiversion(targets("x86_64+avx2+fma+sse4.1", "x86_64+sse4.1"))]
+fn backward_level(
+    level: &Level,
+    l: usize,
+    mask: i64,
+    u: &[f32],
+    tables: &[f32],
+    stride: usize,
+    grad: &[f32],
+    l_n: usize,
+    features: &mut [&mut [f32]],
+) -> Vec<f32> {
+    let n = u.len() / 3;
+    let f_n = features.len();
+    let mut gu = vec![0.0f32; 3 * n];
+    for (i, gui) in gu.chunks_exact_mut(3).enumerate() {
+        let (rows, w, dw) = corners(level, mask, [u[3 * i], u[3 * i + 1], u[3 * i + 2]]);
+        let g = &grad[(i * l_n + l) * f_n..(i * l_n + l + 1) * f_n];
+        for k in 0..8 {
+            // ∂/∂u of Σ_f g_f · t_f[row]: the corner's value along the gradient, once per corner.
+            let mut v = 0.0f32;
+            for (f, slice) in features.iter_mut().enumerate() {
+                slice[rows[k] - level.base] += w[k] * g[f];
+                v += g[f] * tables[f * stride + rows[k]];
+            }
+            for d in 0..3 {
+                gui[d] += dw[k][d] * v;
+            }
+        }
+    }
+    gu
 }
 
 /// [`encode_backward_into`] with a fresh table gradient: `(∂/∂u, ∂/∂tables)`.
