@@ -306,6 +306,11 @@ pub struct OutputConfig {
     /// See `keep_prior` (mm). 0.3 scored best of 0.3 and 1.0 on the BraVa trees
     /// (docs/RESULTS.md).
     pub keep_prior_mm: f64,
+    /// Keep only the pieces of the extracted surface that the density links to the prior:
+    /// a connected component is kept when most of its vertices lie next to voxels joined to
+    /// the prior by a path of density ≥ this fraction × the iso-level (26-connected). 0 = off.
+    /// Needs a prior.
+    pub connected_level_fraction: f64,
     /// Centreline (`centreline.swc` / `.vtp`, TEASAR on the completed solid): each traced
     /// path covers the voxels within `centreline_scale` × the vessel radius +
     /// `centreline_const_mm` of it (larger: fewer, longer branches).
@@ -328,6 +333,7 @@ impl Default for OutputConfig {
             level_from_views: true,
             keep_prior: true,
             keep_prior_mm: 0.3,
+            connected_level_fraction: 0.0,
             centreline_scale: 1.5,
             centreline_const_mm: 1.0,
             centreline_min_branch_mm: 1.0,
@@ -534,6 +540,11 @@ impl Config {
         check(self.densify.every >= 1, "densify.every", "must be ≥ 1")?;
         check(self.densify.grad_threshold > 0.0, "densify.grad_threshold", "must be > 0")?;
         check(self.output.min_island_mm2 >= 0.0, "output.min_island_mm2", "must be ≥ 0")?;
+        check(
+            (0.0..=1.0).contains(&self.output.connected_level_fraction),
+            "output.connected_level_fraction",
+            "must be in [0, 1]",
+        )?;
         check(self.output.mc_level > 0.0, "output.mc_level", "must be > 0")?;
         check(
             self.output.keep_prior_mm >= 0.0 && self.output.keep_prior_mm <= 100.0,

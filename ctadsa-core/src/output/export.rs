@@ -28,7 +28,8 @@ use crate::method::model::host_vec;
 use crate::method::train::{StepLog, Trainer};
 use crate::output::centreline::{CentrelineSummary, SolidPart, completed_centreline, write_centreline};
 use crate::output::extraction::{
-    LevelScore, best_level, completed_solid, density_scale, join_prior, prior_solid, score_levels,
+    LevelScore, best_level, completed_solid, density_scale, join_prior, keep_connected_to_prior, prior_solid,
+    score_levels,
 };
 use crate::output::plot::{PALETTE, Series, line_plot};
 use ctadsa_render::ConeBeamView;
@@ -47,7 +48,8 @@ pub struct RunSummary {
     /// With `output.level_from_views`: every candidate level and its silhouette Dice.
     pub level_scores: Vec<LevelScore>,
     pub mesh_triangles: usize,
-    /// Connected components dropped as floaters (`output.min_island_mm2`).
+    /// Connected components dropped as floaters (`output.min_island_mm2`) or as not linked
+    /// to the prior (`output.connected_level_fraction`).
     pub islands_dropped: usize,
     pub final_loss: f64,
     /// Scores of the completed surface (exact distances, `docs/METRICS.md`) when the case has
@@ -287,6 +289,21 @@ fn extract_completed_surface(
         (kept, dropped)
     } else {
         (raw_mesh, 0)
+    };
+    let (extracted, islands_dropped) = match prior {
+        Some(p) if out.connected_level_fraction > 0.0 => {
+            let voxelised;
+            let s = match &solid {
+                Some(s) => s,
+                None => {
+                    voxelised = prior_solid(p, volume);
+                    &voxelised
+                }
+            };
+            let (kept, dropped) = keep_connected_to_prior(&extracted, volume, out.connected_level_fraction * level, s);
+            (kept, islands_dropped + dropped)
+        }
+        _ => (extracted, islands_dropped),
     };
     let mesh = match (prior, &solid) {
         (Some(p), Some(s)) => {

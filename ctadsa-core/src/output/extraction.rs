@@ -2,7 +2,9 @@
 //! - the iso-level chosen so that the extracted volume, projected into every view, best matches
 //!   the views' vessel masks (Dice), instead of a fixed fraction of a density percentile;
 //! - the prior kept: the completed surface is the prior mesh joined with the new vessels of the
-//!   extracted surface (its faces outside the prior and farther than a margin from it).
+//!   extracted surface (its faces outside the prior and farther than a margin from it);
+//! - optionally, only the pieces of the extracted surface that the density connects to the
+//!   prior: a vessel tree is connected, while the ghosts of a few views float free.
 
 use ctadsa_render::ConeBeamView;
 use glam::DVec3;
@@ -125,4 +127,116 @@ pub fn join_prior(extracted: &TriMesh, prior: &TriMesh, solid: &Volume<u8>, marg
 /// The prior's solid voxels on `volume`'s grid.
 pub fn prior_solid(prior: &TriMesh, volume: &Volume<f32>) -> Volume<u8> {
     voxelize_mesh(prior, volume.grid)
+}
+
+/// Voxels with `density ≥ level` that a 26-connected path of such voxels links to a voxel of
+/// `solid` (the prior) that also has `density ≥ level`.
+pub fn connected_to_solid(volume: &Volume<f32>, level: f64, solid: &Volume<u8>) -> Vec<bool> {
+    let grid = volume.grid;
+    let [nx, ny, nz] = grid.dims;
+    let above = |i: usize| volume.data[i] as f64 >= level;
+    let mut reached = vec![false; grid.len()];
+    let mut stack: Vec<usize> = (0..grid.len()).filter(|&i| solid.data[i] != 0 && above(i)).collect();
+    for &i in &stack {
+        reached[i] = true;
+    }
+    while let Some(i) = stack.pop() {
+        let (x, y, z) = (i / (ny * nz), (i / nz) % ny, i % nz);
+        for a in x.saturating_sub(1)..(x + 2).min(nx) {
+            for b in y.saturating_sub(1)..(y + 2).min(ny) {
+                for c in z.saturating_sub(1)..(z + 2).min(nz) {
+                    let j = grid.index(a, b, c);
+                    if !reached[j] && above(j) {
+                        reached[j] = true;
+                        stack.push(j);
+                    }
+                }
+            }
+        }
+    }
+    reached
+}
+
+/// Whether the voxel containing `p`, or one of its 26 neighbours, is set in `voxels`.
+fn near_set(volume: &Volume<f32>, voxels: &[bool], p: DVec3) -> bool {
+    let g = volume.grid;
+    let ijk = [0, 1, 2].map(|a| ((p[a] - g.origin_mm[a]) / g.spacing_mm[a]).floor() as i64);
+    (-1..=1).any(|dx| {
+        (-1..=1).any(|dy| {
+            (-1..=1).any(|dz| {
+                let q = [ijk[0] + dx, ijk[1] + dy, ijk[2] + dz];
+                q.iter().zip(g.dims).all(|(&t, d)| t >= 0 && (t as usize) < d)
+                    && voxels[g.index(q[0] as usize, q[1] as usize, q[2] as usize)]
+            })
+        })
+    })
+}
+
+/// The connected components of `extracted` that the density links to the prior: those with at
+/// least half of their vertices next to a voxel of [`connected_to_solid`] at `level`. Returns
+/// the kept surface and the number of components dropped.
+pub fn keep_connected_to_prior(
+    extracted: &TriMesh,
+    volume: &Volume<f32>,
+    level: f64,
+    solid: &Volume<u8>,
+) -> (TriMesh, usize) {
+    let reached = connected_to_solid(volume, level, solid);
+    let mut kept = TriMesh::default();
+    let mut dropped = 0;
+    for part in extracted.components() {
+        let near = part.vertices.iter().filter(|&&v| near_set(volume, &reached, v)).count();
+        if 2 * near >= part.vertices.len() {
+            kept.append(&part);
+        } else {
+            dropped += 1;
+        }
+    }
+    (kept, dropped)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::data::mesh::marching::extract_isosurface;
+    use crate::data::volume::Grid;
+
+    /// A 40 × 12 × 12 grid of 1 mm: the prior (x < 6) with a vessel running on to x = 16, a
+    /// floating blob at x = 26..30, and between them a faint bridge of density `bridge`.
+    fn scene(bridge: f32) -> (Volume<f32>, Volume<u8>) {
+        let grid = Grid { dims: [40, 12, 12], spacing_mm: [1.0; 3], origin_mm: [0.0; 3] };
+        let mut density = Volume::<f32>::zeros(grid);
+        let mut solid = Volume::<u8>::zeros(grid);
+        for x in 0..40 {
+            for y in 4..8 {
+                for z in 4..8 {
+                    let i = grid.index(x, y, z);
+                    density.data[i] = match x {
+                        0..16 => 1.0,
+                        16..26 if (5..7).contains(&y) && (5..7).contains(&z) => bridge,
+                        26..30 => 1.0,
+                        _ => 0.0,
+                    };
+                    solid.data[i] = u8::from(x < 6);
+                }
+            }
+        }
+        (density, solid)
+    }
+
+    #[test]
+    fn pieces_the_density_links_to_the_prior_are_kept_and_floating_ones_dropped() {
+        let (density, solid) = scene(0.0);
+        let mesh = extract_isosurface(&density, 0.5);
+        assert_eq!(mesh.components().len(), 2, "the prior's vessel and the floating blob");
+        let (kept, dropped) = keep_connected_to_prior(&mesh, &density, 0.05, &solid);
+        assert_eq!(dropped, 1);
+        let (_, hi) = kept.bounds_mm().unwrap();
+        assert!(hi.x < 20.0, "the kept piece is the vessel on the prior, up to x = {}", hi.x);
+        // A faint bridge links the blob at a path level below the bridge's density, not above.
+        let (density, solid) = scene(0.1);
+        let mesh = extract_isosurface(&density, 0.5);
+        assert_eq!(keep_connected_to_prior(&mesh, &density, 0.05, &solid).1, 0);
+        assert_eq!(keep_connected_to_prior(&mesh, &density, 0.2, &solid).1, 1);
+    }
 }
