@@ -221,6 +221,71 @@ fn resumed_run_continues_the_same_trajectory() {
     assert_resume_is_exact(tiny_config(30), 15, "plain");
 }
 
+/// A checkpoint of a version whose hash table padded every level to `T` rows resumes into the
+/// compact table with the same values and Adam moments: the same trajectory as without the
+/// interruption. (The tiny config's 4 dense levels of 8 have unused padding rows.)
+#[test]
+fn checkpoint_with_the_padded_table_layout_resumes_exactly() {
+    use burn::module::{Module, Param};
+    use burn::tensor::{Tensor, TensorData};
+    use ctadsa_core::method::model::host_vec;
+    use ctadsa_core::method::optim::FusedAdam;
+    use ctadsa_core::method::optim::state_edit::edit_state;
+    let cfg = tiny_config(12);
+    let c = cfg.field.encoding;
+    let padded_rows = c.levels * c.table_size() as usize;
+    assert!(c.rows() < padded_rows, "the config has padding to drop");
+    // Compact [F, R] → padded [F, levels·T] (zeros in the padding).
+    let pad = |compact: &[f32]| -> Vec<f32> {
+        let mut out = vec![0.0f32; c.features * padded_rows];
+        for f in 0..c.features {
+            for r in 0..padded_rows {
+                if let Some(k) = c.compact_row(r) {
+                    out[f * padded_rows + r] = compact[f * c.rows() + k];
+                }
+            }
+        }
+        out
+    };
+    let (case, device) = (tiny_case(), Device::ndarray().autodiff());
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("tiny-padded-{}", std::process::id()));
+    let mut straight = Trainer::new(case, cfg.clone(), device.clone()).unwrap();
+    while straight.iteration < 6 {
+        straight.step().unwrap();
+    }
+    let ck = straight.save_checkpoint(&dir).unwrap();
+    // Rewrite the checkpoint's table and its moments in the padded layout.
+    let mut model = straight.model().clone();
+    let table = &model.field.grid.tables;
+    let padded =
+        Tensor::<2>::from_data(TensorData::new(pad(&host_vec(table.val())), [c.features, padded_rows]), &device);
+    model.field.grid.tables = Param::initialized(table.id, padded);
+    model.save_file(ck.join("model.bpk")).unwrap();
+    let id = straight.model().field.grid.tables.id.val();
+    let optim = burn::optim::ModuleOptimizer::from(FusedAdam::new(cfg.optim.epsilon as f32));
+    let optim = optim.load(ck.join("optim-field.bpk")).unwrap();
+    let mut padded_moments = 0;
+    let optim = edit_state(optim, |t| {
+        (t.param_id == id).then(|| {
+            padded_moments += 1;
+            (pad(&t.values), vec![c.features, padded_rows])
+        })
+    })
+    .unwrap();
+    assert_eq!(padded_moments, 2, "Adam's two moments of the table");
+    optim.save(ck.join("optim-field.bpk")).unwrap();
+    let mut resumed = Trainer::resume(case, cfg, device, &ck).unwrap();
+    assert_eq!(host_vec(resumed.model().field.grid.tables.val()), host_vec(straight.model().field.grid.tables.val()));
+    while straight.iteration < 12 {
+        straight.step().unwrap();
+        resumed.step().unwrap();
+    }
+    for (x, y) in straight.history[6..].iter().zip(&resumed.history[6..]) {
+        assert_eq!(x.loss, y.loss, "iteration {}: straight vs resumed from the padded layout", x.iteration);
+    }
+    assert_eq!(straight.host_gaussians(), resumed.host_gaussians());
+}
+
 /// The fused Adam (default) against burn's Adam (`optim.adam = "burn"`, the reference) over a
 /// 50-step training run with densification: the same losses and Gaussians, bit for bit.
 #[test]

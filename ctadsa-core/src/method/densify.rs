@@ -9,15 +9,16 @@ use std::collections::HashSet;
 
 use burn::module::Param;
 use burn::optim::ModuleOptimizer;
-use burn::tensor::{DType, Device};
+use burn::tensor::Device;
 use glam::{DQuat, DVec3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use crate::config::DensifyConfig;
 use crate::data::volume::BoxMm;
-use crate::error::{CoreError, Result};
+use crate::error::Result;
 use crate::method::model::{GaussianInit, GaussianModel, ScaleBounds, tensor2};
+use crate::method::optim::state_edit::edit_state;
 
 /// Per-Gaussian accumulators of the screen-space gradient statistic.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -177,46 +178,15 @@ pub fn apply(
         (model.raw_scales.id, 3, &current.raw_scales, &plan.added.raw_scales),
         (model.rotations.id, 4, &current.rotations, &plan.added.rotations),
     ];
-    // Optimizer state through its burnpack form (the record's tensors are not public).
-    let bytes = optim.into_bytes().map_err(|e| CoreError::invalid(format!("optimizer state: {e:?}")))?;
-    let reader =
-        burn_pack::Reader::from_bytes(bytes).map_err(|e| CoreError::invalid(format!("optimizer state: {e:?}")))?;
-    let scalars = reader.scalars().clone();
-    let metadata = reader.metadata().clone();
-    let tensors = reader.into_tensors().map_err(|e| CoreError::invalid(format!("optimizer state: {e:?}")))?;
-    let mut edited = Vec::with_capacity(tensors.len());
-    for t in tensors {
-        let (name, dtype, shape, param_id, bytes) =
-            t.into_parts().map_err(|e| CoreError::invalid(format!("optimizer state: {e:?}")))?;
-        let hit = ids.iter().find(|(id, ..)| Some(id.val()) == param_id);
-        match hit {
-            Some((_, cols, ..)) if dtype == DType::F32 && shape.num_dims() == 2 => {
-                let values: Vec<f32> =
-                    bytes.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
-                let zeros = vec![0.0f32; n_new * cols];
-                let rows = gather_rows(&values, *cols, &plan.keep, &zeros);
-                let n_rows = rows.len() / cols;
-                let raw: Vec<u8> = rows.iter().flat_map(|v| v.to_le_bytes()).collect();
-                edited.push(burn_pack::Tensor::new(
-                    name,
-                    dtype,
-                    vec![n_rows, *cols],
-                    param_id,
-                    burn::tensor::Bytes::from_bytes_vec(raw),
-                ));
-            }
-            _ => edited.push(burn_pack::Tensor::new(name, dtype, shape, param_id, bytes)),
-        }
-    }
-    let mut writer = burn_pack::Writer::new(edited);
-    for (k, v) in &scalars {
-        writer = writer.with_scalar(k, *v);
-    }
-    for (k, v) in &metadata {
-        writer = writer.with_metadata(k, v);
-    }
-    let bytes = writer.into_bytes().map_err(|e| CoreError::invalid(format!("optimizer state: {e:?}")))?;
-    let optim = optim.from_bytes(bytes).map_err(|e| CoreError::invalid(format!("optimizer state: {e:?}")))?;
+    // Moments of kept Gaussians kept (row gather), zeros for the new ones.
+    let optim = edit_state(optim, |t| {
+        let (_, cols, ..) = ids.iter().find(|(id, ..)| id.val() == t.param_id)?;
+        (t.shape.len() == 2).then(|| {
+            let rows = gather_rows(&t.values, *cols, &plan.keep, &vec![0.0f32; n_new * cols]);
+            let n_rows = rows.len() / cols;
+            (rows, vec![n_rows, *cols])
+        })
+    })?;
     let [(id_m, _, m, am), (id_s, _, s, as_), (id_r, _, r, ar)] = ids;
     let model = GaussianModel {
         means: Param::initialized(id_m, tensor2(gather_rows(m, 3, &plan.keep, am), 3, device).require_grad()),

@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use burn::lr_scheduler::constant::ConstantLr;
 use burn::lr_scheduler::module_lr_scheduler::{ModuleLearningRate, ModuleLrScheduler};
-use burn::module::{Module, ParamGroup};
+use burn::module::{Module, Param, ParamGroup};
 use burn::optim::decay::WeightDecayConfig;
 use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::tensor::{Device, Int, Tensor, TensorData};
@@ -30,6 +30,7 @@ use crate::method::init::initialise;
 use crate::method::loss::{LossTargets, PriorAnchor};
 use crate::method::model::{GaussianInit, GaussianModel, ScaleBounds, host_vec};
 use crate::method::optim::FusedAdam;
+use crate::method::optim::state_edit::edit_state;
 use crate::method::pose::ViewPoses;
 use crate::method::working_box::working_box_from_inputs;
 
@@ -228,6 +229,30 @@ pub fn decayed(range: [f64; 2], t: usize, total: usize) -> f64 {
     let f = (t as f64 / total.max(1) as f64).clamp(0.0, 1.0);
     let [a, b] = range;
     if a > 0.0 && b > 0.0 { a * (b / a).powf(f) } else { a + (b - a) * f }
+}
+
+/// Loads a checkpoint's model into `skeleton`. A checkpoint of a version whose hash table padded
+/// every level to `T` rows (`[F, levels · T]`) is loaded as such and compacted to `[F, R]`; the
+/// table parameter's id is then returned, so that its Adam moments can be compacted too.
+fn load_model(skeleton: GaussianModel, path: &Path) -> Result<(GaussianModel, Option<u64>)> {
+    let error = |e: &dyn std::fmt::Debug| CoreError::format(path, format!("cannot load model (same config?): {e:?}"));
+    let first = match skeleton.clone().try_load_file(path) {
+        Ok(model) => return Ok((model, None)),
+        Err(e) => e,
+    };
+    let c = skeleton.field.grid.config;
+    let mut padded = skeleton;
+    let table = &padded.field.grid.tables;
+    let zeros = Tensor::<2>::zeros([c.features, c.levels * c.table_size() as usize], &table.val().device());
+    padded.field.grid.tables = Param::initialized(table.id, zeros);
+    let Ok(mut model) = padded.try_load_file(path) else { return Err(error(&first)) };
+    let table = &model.field.grid.tables;
+    let device = table.val().device();
+    let compact = c.compact_table(&host_vec(table.val()));
+    let compact = Tensor::<2>::from_data(TensorData::new(compact, [c.features, c.rows()]), &device);
+    let id = table.id;
+    model.field.grid.tables = Param::initialized(id, compact.require_grad());
+    Ok((model, Some(id.val())))
 }
 
 impl Trainer {
@@ -645,9 +670,7 @@ impl Trainer {
             &device,
         );
         let skeleton = GaussianModel::new(&skeleton_init, field, bounds, &device);
-        let model = skeleton
-            .try_load_file(&model_path)
-            .map_err(|e| CoreError::format(&model_path, format!("cannot load model (same config?): {e:?}")))?;
+        let (model, padded_table) = load_model(skeleton, &model_path)?;
         let mut t = Self::assemble(
             cfg,
             device,
@@ -669,6 +692,15 @@ impl Trainer {
         };
         t.optim = load(gaussian_optim, &optim_path)?;
         t.field_optim = load(field_optim, &field_path)?;
+        if let Some(id) = padded_table {
+            let c = t.cfg.field.encoding;
+            let padded = [c.features, c.levels * c.table_size() as usize];
+            t.field_optim = edit_state(t.field_optim, |s| {
+                (s.param_id == id && s.shape == padded)
+                    .then(|| (c.compact_table(&s.values), vec![c.features, c.rows()]))
+            })
+            .map_err(|e| CoreError::format(&field_path, e.to_string()))?;
+        }
         if let Some((poses, optim)) = t.poses.take() {
             let (mp, op) = (checkpoint.join("poses.bpk"), checkpoint.join("poses-optim.bpk"));
             let poses = poses

@@ -3,10 +3,12 @@
 //! Level `l` has resolution `r_l = ⌊base · growth^l⌋` cells per unit; a point `u ∈ [0, 1)³`
 //! falls in cell `⌊u r_l⌋` and reads the `features`-vectors stored at the cell's 8 corners,
 //! trilinearly weighted. Corner `c` is stored at `c_x + c_y (r+1) + c_z (r+1)²` when the level's
-//! grid fits in the table (dense), else at `(c_x ⊕ c_y·P₁ ⊕ c_z·P₂) mod T` (hashed). All levels'
-//! tables are one `[features, levels·T]` parameter (feature-major), read with one `gather` along
-//! its last axis; gradients reach the table (scatter-add) and the positions (through the
-//! trilinear weights).
+//! grid fits in `T` rows (dense: the level has `(r+1)³` rows), else at
+//! `(c_x ⊕ c_y·P₁ ⊕ c_z·P₂) mod T` (hashed: `T` rows). All levels' tables are one
+//! `[features, R]` parameter (feature-major, levels one after another, `R` = the sum of the
+//! levels' rows: no unused padding on the dense levels), read with one `gather` along its last
+//! axis; gradients reach the table (scatter-add) and the positions (through the trilinear
+//! weights).
 
 use burn::module::{Module, Param};
 use burn::tensor::{Device, Int, Tensor, TensorData};
@@ -71,6 +73,44 @@ impl HashGridConfig {
         (self.resolution(l) + 1).pow(3) <= self.table_size()
     }
 
+    /// Rows of level `l`: `(r + 1)³` when dense, `T` when hashed.
+    pub fn level_rows(&self, l: usize) -> usize {
+        if self.dense(l) { (self.resolution(l) + 1).pow(3) as usize } else { self.table_size() as usize }
+    }
+
+    /// First row of level `l` in the parameter.
+    pub fn level_offset(&self, l: usize) -> usize {
+        (0..l).map(|j| self.level_rows(j)).sum()
+    }
+
+    /// Rows of the parameter, all levels: `R`.
+    pub fn rows(&self) -> usize {
+        self.level_offset(self.levels)
+    }
+
+    /// The parameter row (in `0..R`) of each row of the layout with every level padded to `T`
+    /// rows (`levels · T`, that of checkpoints before the compact layout), or `None` for the
+    /// padding.
+    pub fn compact_row(&self, padded_row: usize) -> Option<usize> {
+        let t = self.table_size() as usize;
+        let (l, r) = (padded_row / t, padded_row % t);
+        (l < self.levels && r < self.level_rows(l)).then(|| self.level_offset(l) + r)
+    }
+
+    /// Compacts a `[features, levels · T]` row-major table (the padded layout) to `[features, R]`.
+    pub fn compact_table(&self, padded: &[f32]) -> Vec<f32> {
+        let t = self.table_size() as usize;
+        let padded_rows = self.levels * t;
+        let mut out = Vec::with_capacity(self.features * self.rows());
+        for feature in padded.chunks_exact(padded_rows).take(self.features) {
+            for (l, level) in feature.chunks_exact(t).enumerate() {
+                out.extend_from_slice(&level[..self.level_rows(l)]);
+            }
+        }
+        out.resize(self.features * self.rows(), 0.0);
+        out
+    }
+
     /// Output width `levels × features`.
     pub fn output_dim(&self) -> usize {
         self.levels * self.features
@@ -80,7 +120,7 @@ impl HashGridConfig {
 /// The encoding's parameter (all level tables) and settings.
 #[derive(Module, Debug)]
 pub struct HashGrid {
-    /// `[features, levels · T]`.
+    /// `[features, R]` ([`HashGridConfig::rows`]).
     pub tables: Param<Tensor<2>>,
     #[module(skip)]
     pub config: HashGridConfig,
@@ -88,10 +128,12 @@ pub struct HashGrid {
 
 impl HashGrid {
     /// Tables initialised uniformly in ±1e-4 (as instant-NGP), from `seed` (the same seed gives
-    /// the same tables, whatever else draws random numbers).
+    /// the same tables, whatever else draws random numbers). The values are those the padded
+    /// `[features, levels · T]` layout drew, compacted, so that runs are unchanged by the layout.
     pub fn new(config: HashGridConfig, seed: u64, device: &Device) -> Self {
-        let rows = config.levels * config.table_size() as usize;
-        let tables = super::uniform_tensor([config.features, rows], 1e-4, seed, device);
+        let padded = super::uniform_values(config.features * config.levels * config.table_size() as usize, 1e-4, seed);
+        let tables = config.compact_table(&padded);
+        let tables = Tensor::from_data(TensorData::new(tables, [config.features, config.rows()]), device);
         Self { tables: Param::from_tensor(tables), config }
     }
 
@@ -142,7 +184,7 @@ impl HashGrid {
             sy.push(if d { r1 } else { 0 });
             sz.push(if d { r1 * r1 } else { 0 });
             dense.push(d as i64);
-            base.push(l as i64 * t);
+            base.push(c.level_offset(l) as i64);
         }
         let lvl = |v: Vec<i64>| Tensor::<3, Int>::from_data(TensorData::new(v, [1, levels, 1]), &device);
         let (sy, sz, dense, base) = (lvl(sy), lvl(sz), lvl(dense), lvl(base));
@@ -165,7 +207,7 @@ impl HashGrid {
 }
 
 /// A direct per-point evaluation of the same encoding from the table values (host, f64), for
-/// tests: `tables` is `[features, levels·T]` row-major, `u` one point.
+/// tests: `tables` is `[features, R]` row-major, `u` one point.
 pub fn encode_reference(config: &HashGridConfig, tables: &[f32], u: [f64; 3]) -> Vec<f64> {
     let t = config.table_size();
     let mut out = Vec::with_capacity(config.output_dim());
@@ -184,8 +226,8 @@ pub fn encode_reference(config: &HashGridConfig, tables: &[f32], u: [f64; 3]) ->
                 (cc[0] ^ (cc[1] * HASH_P1) ^ (cc[2] * HASH_P2)) & (t - 1)
             };
             let w: f64 = (0..3).map(|d| if o[d] == 1 { frac[d] } else { 1.0 - frac[d] }).product();
-            let row = (l as i64 * t + idx) as usize;
-            let stride = config.levels * t as usize;
+            let row = config.level_offset(l) + idx as usize;
+            let stride = config.rows();
             for (f, a) in acc.iter_mut().enumerate() {
                 *a += w * tables[f * stride + row] as f64;
             }

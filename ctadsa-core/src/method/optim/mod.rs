@@ -6,6 +6,7 @@
 //! and the test oracle.
 
 mod kernel;
+pub mod state_edit;
 
 use burn::backend::Dispatch;
 use burn::optim::{AdamState, AdaptiveMomentumState};

@@ -11,17 +11,19 @@ struct Level {
     res: f32,
     r1: i64,
     dense: bool,
+    /// First row and row count of the level in the table.
     base: usize,
+    rows: usize,
 }
 
 fn levels(c: &HashGridConfig) -> Vec<Level> {
-    let t = c.table_size();
     (0..c.levels)
         .map(|l| Level {
             res: c.resolution(l) as f32,
             r1: c.resolution(l) + 1,
             dense: c.dense(l),
-            base: l * t as usize,
+            base: c.level_offset(l),
+            rows: c.level_rows(l),
         })
         .collect()
 }
@@ -73,7 +75,7 @@ fn corners(lv: &Level, mask: i64, u: [f32; 3]) -> ([usize; 8], [f32; 8], [[f32; 
     (rows, w, dw)
 }
 
-/// Encodes `u` (`[N·3]`) with `tables` (`[F · L·T]`, feature-major): `[N · L·F]`.
+/// Encodes `u` (`[N·3]`) with `tables` (`[F · R]`, feature-major): `[N · L·F]`.
 ///
 /// Level-major: one task per level reads that level's `F × T` table slice for every point, so
 /// the slice (4 MB at T = 2¹⁹) stays in cache while the points' corners hit it; a point-major
@@ -81,7 +83,7 @@ fn corners(lv: &Level, mask: i64, u: [f32; 3]) -> ([usize; 8], [f32; 8], [[f32; 
 pub fn encode(c: &HashGridConfig, u: &[f32], tables: &[f32]) -> Vec<f32> {
     let lv = levels(c);
     let (l_n, f_n) = (c.levels, c.features);
-    let stride = c.levels * c.table_size() as usize;
+    let stride = c.rows();
     let mask = c.table_size() - 1;
     let n = u.len() / 3;
     // [L][N·F], then transposed to [N][L·F].
@@ -97,7 +99,7 @@ pub fn encode(c: &HashGridConfig, u: &[f32], tables: &[f32]) -> Vec<f32> {
 }
 
 /// Gradients of `Σ grad · encode(u, tables)` with respect to `u` (`[N·3]`) and `tables`
-/// (written into `grad_tables`, `[F · L·T]`, which must be zero on entry).
+/// (written into `grad_tables`, `[F · R]`, which must be zero on entry).
 ///
 /// One task per level (level-major, as [`encode`]): it scatters the level's table gradient —
 /// a level's rows have no other writer, so there are no atomics and each entry sums its points in
@@ -112,13 +114,17 @@ pub fn encode_backward_into(
 ) -> Vec<f32> {
     let lv = levels(c);
     let (l_n, f_n) = (c.levels, c.features);
-    let stride = c.levels * c.table_size() as usize;
+    let stride = c.rows();
     let mask = c.table_size() - 1;
     let n = u.len() / 3;
-    let t_size = c.table_size() as usize;
     let mut by_level: Vec<Vec<&mut [f32]>> = (0..l_n).map(|_| Vec::with_capacity(f_n)).collect();
-    for (chunk, rows) in grad_tables.chunks_mut(t_size).enumerate() {
-        by_level[chunk % l_n].push(rows); // chunk = f · L + l: pushed in feature order
+    for feature in grad_tables.chunks_mut(stride) {
+        let mut rest = feature;
+        for (l, level) in lv.iter().enumerate() {
+            let (rows, tail) = rest.split_at_mut(level.rows);
+            by_level[l].push(rows); // pushed in feature order
+            rest = tail;
+        }
     }
     let grad_u_by_level: Vec<Vec<f32>> = by_level
         .into_par_iter()
@@ -205,7 +211,7 @@ mod tests {
     fn table_grad_sequential(c: &HashGridConfig, u: &[f32], grad: &[f32]) -> Vec<f32> {
         let lv = levels(c);
         let (l_n, f_n) = (c.levels, c.features);
-        let stride = c.levels * c.table_size() as usize;
+        let stride = c.rows();
         let mask = c.table_size() - 1;
         let mut out = vec![0.0f32; f_n * stride];
         for i in 0..u.len() / 3 {
@@ -231,7 +237,7 @@ mod tests {
         let n = 5000;
         // Some points outside [0, 1]³ exercise the clamping.
         let u: Vec<f32> = (0..3 * n).map(|_| rng.random_range(-0.05f32..1.05)).collect();
-        let tables: Vec<f32> = (0..c.features * c.levels * c.table_size() as usize).map(|_| rng.random()).collect();
+        let tables: Vec<f32> = (0..c.features * c.rows()).map(|_| rng.random()).collect();
         let grad: Vec<f32> = (0..n * c.levels * c.features).map(|_| rng.random_range(-1.0f32..1.0)).collect();
         let (_, parallel) = encode_backward(&c, &u, &tables, &grad);
         assert_eq!(parallel, table_grad_sequential(&c, &u, &grad));

@@ -130,10 +130,9 @@ pub(crate) fn prepare(t: CubeTensor) -> CubeTensor {
 }
 
 fn meta(c: &HashGridConfig, like: &CubeTensor) -> CubeTensor {
-    let t = c.table_size();
     let data: Vec<f32> = (0..c.levels)
         .flat_map(|l| {
-            [c.resolution(l) as f32, (c.resolution(l) + 1) as f32, c.dense(l) as u8 as f32, (l as i64 * t) as f32]
+            [c.resolution(l) as f32, (c.resolution(l) + 1) as f32, c.dense(l) as u8 as f32, c.level_offset(l) as f32]
         })
         .collect();
     CubeBackend::float_from_data(TensorData::new(data, [c.levels, 4]), &like.device)
@@ -165,13 +164,13 @@ pub fn encode(u: CubeTensor, tables: CubeTensor, c: &HashGridConfig) -> CubeTens
         n as u32,
         c.levels as u32,
         c.features as u32,
-        (c.levels as i64 * c.table_size()) as u32,
+        c.rows() as u32,
         (c.table_size() - 1) as u32,
     );
     out
 }
 
-/// Backward on the GPU: `(∂L/∂u [N, 3], ∂L/∂tables [F, L·T])`.
+/// Backward on the GPU: `(∂L/∂u [N, 3], ∂L/∂tables [F, R])`.
 pub fn encode_backward(
     u: CubeTensor,
     tables: CubeTensor,
@@ -198,7 +197,7 @@ pub fn encode_backward(
             n as u32,
             c.levels as u32,
             c.features as u32,
-            (c.levels as i64 * c.table_size()) as u32,
+            c.rows() as u32,
             (c.table_size() - 1) as u32,
         );
     }

@@ -32,14 +32,14 @@ use crate::method::ndarray_host::with_host;
 pub struct HashGrads<B: Backend> {
     /// `∂L/∂u` `[N, 3]`.
     pub u: FloatTensor<B>,
-    /// `∂L/∂tables` `[F, L·T]`.
+    /// `∂L/∂tables` `[F, R]`.
     pub tables: FloatTensor<B>,
 }
 
 /// Backend operations of the hash encoding.
 #[backend_extension(Autodiff, Cube: cfg(feature = "wgpu"), NdArray)]
 pub trait HashEncodeBackend: Backend {
-    /// `u` `[N, 3]` (in `[0, 1]³`, clamped), `tables` `[F, L·T]` → `[N, L·F]`.
+    /// `u` `[N, 3]` (in `[0, 1]³`, clamped), `tables` `[F, R]` → `[N, L·F]`.
     fn hash_encode(u: FloatTensor<Self>, tables: FloatTensor<Self>, config: HashGridConfig) -> FloatTensor<Self>;
     /// Gradients for the upstream gradient `grad` `[N, L·F]`.
     fn hash_encode_backward(
@@ -166,7 +166,7 @@ impl<B: Backend + HashEncodeBackend, C: CheckpointStrategy> HashEncodeBackend fo
     }
 }
 
-/// The encoding of `u` `[N, 3]` with `tables` `[F, L·T]`: `[N, L·F]`, differentiable in both.
+/// The encoding of `u` `[N, 3]` with `tables` `[F, R]`: `[N, L·F]`, differentiable in both.
 pub fn hash_encode(u: Tensor<2>, tables: Tensor<2>, config: HashGridConfig) -> Tensor<2> {
     Tensor::from_dispatch(<Dispatch as HashEncodeBackend>::hash_encode(
         u.into_dispatch(),
