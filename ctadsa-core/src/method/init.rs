@@ -185,7 +185,6 @@ fn connected_to_anchors(
     is_anchor: impl Fn(&Scored) -> bool,
 ) -> Vec<Scored> {
     let grid = prior.grid;
-    let [nx, ny, nz] = grid.dims;
     let index_of = |c: DVec3| {
         let ijk = [0, 1, 2].map(|a| ((c[a] - grid.origin_mm[a]) / grid.spacing_mm[a]).floor() as isize);
         ijk.iter()
@@ -209,20 +208,7 @@ fn connected_to_anchors(
         }
     }
     // Flood fill from the anchors and the supported voxels within reach of the prior.
-    while let Some(i) = stack.pop() {
-        let (x, y, z) = (i / (ny * nz), (i / nz) % ny, i % nz);
-        for a in x.saturating_sub(1)..(x + 2).min(nx) {
-            for b in y.saturating_sub(1)..(y + 2).min(ny) {
-                for c in z.saturating_sub(1)..(z + 2).min(nz) {
-                    let j = grid.index(a, b, c);
-                    if supported[j] && !reached[j] {
-                        reached[j] = true;
-                        stack.push(j);
-                    }
-                }
-            }
-        }
-    }
+    grid.flood_fill_26(&mut reached, stack, |j| supported[j]);
     scored.into_iter().filter(|s| index_of(s.1).is_some_and(|i| reached[i])).collect()
 }
 

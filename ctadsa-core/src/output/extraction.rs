@@ -133,27 +133,13 @@ pub fn prior_solid(prior: &TriMesh, volume: &Volume<f32>) -> Volume<u8> {
 /// `solid` (the prior) that also has `density ≥ level`.
 pub fn connected_to_solid(volume: &Volume<f32>, level: f64, solid: &Volume<u8>) -> Vec<bool> {
     let grid = volume.grid;
-    let [nx, ny, nz] = grid.dims;
     let above = |i: usize| volume.data[i] as f64 >= level;
     let mut reached = vec![false; grid.len()];
-    let mut stack: Vec<usize> = (0..grid.len()).filter(|&i| solid.data[i] != 0 && above(i)).collect();
-    for &i in &stack {
+    let seeds: Vec<usize> = (0..grid.len()).filter(|&i| solid.data[i] != 0 && above(i)).collect();
+    for &i in &seeds {
         reached[i] = true;
     }
-    while let Some(i) = stack.pop() {
-        let (x, y, z) = (i / (ny * nz), (i / nz) % ny, i % nz);
-        for a in x.saturating_sub(1)..(x + 2).min(nx) {
-            for b in y.saturating_sub(1)..(y + 2).min(ny) {
-                for c in z.saturating_sub(1)..(z + 2).min(nz) {
-                    let j = grid.index(a, b, c);
-                    if !reached[j] && above(j) {
-                        reached[j] = true;
-                        stack.push(j);
-                    }
-                }
-            }
-        }
-    }
+    grid.flood_fill_26(&mut reached, seeds, above);
     reached
 }
 

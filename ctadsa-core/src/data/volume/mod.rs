@@ -49,6 +49,27 @@ pub struct Grid {
 pub const MAX_GRID_VOXELS: usize = 1 << 29;
 
 impl Grid {
+    /// Marks in `reached` every voxel that a 26-connected path of `passable` voxels links to
+    /// one in `stack` (which must be marked already); `reached` is `[len]`, indices as
+    /// [`Grid::index`].
+    pub fn flood_fill_26(&self, reached: &mut [bool], mut stack: Vec<usize>, passable: impl Fn(usize) -> bool) {
+        let [nx, ny, nz] = self.dims;
+        while let Some(i) = stack.pop() {
+            let (x, y, z) = (i / (ny * nz), (i / nz) % ny, i % nz);
+            for a in x.saturating_sub(1)..(x + 2).min(nx) {
+                for b in y.saturating_sub(1)..(y + 2).min(ny) {
+                    for c in z.saturating_sub(1)..(z + 2).min(nz) {
+                        let j = self.index(a, b, c);
+                        if !reached[j] && passable(j) {
+                            reached[j] = true;
+                            stack.push(j);
+                        }
+                    }
+                }
+            }
+        }
+    }
+
     /// A grid of isotropic `voxel_mm` voxels covering `bounds` (rounded up to whole voxels,
     /// centred on the box).
     pub fn covering(bounds: &BoxMm, voxel_mm: f64) -> Result<Self> {
