@@ -233,7 +233,7 @@ fn checkpoint_with_the_padded_table_layout_resumes_exactly() {
     use ctadsa_core::method::optim::state_edit::edit_state;
     let cfg = tiny_config(12);
     let c = cfg.field.encoding;
-    let padded_rows = c.levels * c.table_size() as usize;
+    let padded_rows = c.padded_rows();
     assert!(c.rows() < padded_rows, "the config has padding to drop");
     // Compact [F, R] → padded [F, levels·T] (zeros in the padding).
     let pad = |compact: &[f32]| -> Vec<f32> {

@@ -243,7 +243,7 @@ fn load_model(skeleton: GaussianModel, path: &Path) -> Result<(GaussianModel, Op
     let c = skeleton.field.grid.config;
     let mut padded = skeleton;
     let table = &padded.field.grid.tables;
-    let zeros = Tensor::<2>::zeros([c.features, c.levels * c.table_size() as usize], &table.val().device());
+    let zeros = Tensor::<2>::zeros([c.features, c.padded_rows()], &table.val().device());
     padded.field.grid.tables = Param::initialized(table.id, zeros);
     let Ok(mut model) = padded.try_load_file(path) else { return Err(error(&first)) };
     let table = &model.field.grid.tables;
@@ -694,7 +694,7 @@ impl Trainer {
         t.field_optim = load(field_optim, &field_path)?;
         if let Some(id) = padded_table {
             let c = t.cfg.field.encoding;
-            let padded = [c.features, c.levels * c.table_size() as usize];
+            let padded = [c.features, c.padded_rows()];
             t.field_optim = edit_state(t.field_optim, |s| {
                 (s.param_id == id && s.shape == padded)
                     .then(|| (c.compact_table(&s.values), vec![c.features, c.rows()]))

@@ -88,6 +88,12 @@ impl HashGridConfig {
         self.level_offset(self.levels)
     }
 
+    /// Rows of the layout that padded every level to `T` rows (`levels · T`), that of
+    /// checkpoints before the compact layout.
+    pub fn padded_rows(&self) -> usize {
+        self.levels * self.table_size() as usize
+    }
+
     /// The parameter row (in `0..R`) of each row of the layout with every level padded to `T`
     /// rows (`levels · T`, that of checkpoints before the compact layout), or `None` for the
     /// padding.
@@ -100,7 +106,7 @@ impl HashGridConfig {
     /// Compacts a `[features, levels · T]` row-major table (the padded layout) to `[features, R]`.
     pub fn compact_table(&self, padded: &[f32]) -> Vec<f32> {
         let t = self.table_size() as usize;
-        let padded_rows = self.levels * t;
+        let padded_rows = self.padded_rows();
         let mut out = Vec::with_capacity(self.features * self.rows());
         for feature in padded.chunks_exact(padded_rows).take(self.features) {
             for (l, level) in feature.chunks_exact(t).enumerate() {
@@ -131,7 +137,7 @@ impl HashGrid {
     /// the same tables, whatever else draws random numbers). The values are those the padded
     /// `[features, levels · T]` layout drew, compacted, so that runs are unchanged by the layout.
     pub fn new(config: HashGridConfig, seed: u64, device: &Device) -> Self {
-        let padded = super::uniform_values(config.features * config.levels * config.table_size() as usize, 1e-4, seed);
+        let padded = super::uniform_values(config.features * config.padded_rows(), 1e-4, seed);
         let tables = config.compact_table(&padded);
         let tables = Tensor::from_data(TensorData::new(tables, [config.features, config.rows()]), device);
         Self { tables: Param::from_tensor(tables), config }
