@@ -1,16 +1,101 @@
 //! CPU kernels of the fused linear layer on host slices, row-major: matrix products through
-//! ndarray's `general_mat_mul` (matrixmultiply; transposed operands are strided views, never
-//! copies), bias and ReLU in the same pass.
+//! the `gemm` crate (transposed operands are strided views, never copies) on fixed row blocks in
+//! parallel, bias and ReLU in the same pass. The blocks do not depend on the thread count, and
+//! the weight gradient sums its per-block products in block order, so results are the same for
+//! any number of threads.
 
-use ndarray::linalg::general_mat_mul;
-use ndarray::{ArrayView2, ArrayViewMut2};
 use rayon::prelude::*;
 
 /// Rows per block of the bias-gradient sum (fixed, so the sum is the same for any thread count).
 const BIAS_BLOCK_ROWS: usize = 4096;
+/// Rows per parallel block of the matrix products.
+const PRODUCT_BLOCK_ROWS: usize = 2048;
 
-fn view2(values: &[f32], rows: usize, cols: usize) -> ArrayView2<'_, f32> {
-    ArrayView2::from_shape((rows, cols), values).expect("the op checked the shapes")
+/// A host matrix `rows × cols` whose element `(r, c)` is `data[r·row_stride + c·col_stride]`.
+#[derive(Debug, Clone, Copy)]
+struct MatRef<'a> {
+    data: &'a [f32],
+    rows: usize,
+    cols: usize,
+    row_stride: usize,
+    col_stride: usize,
+}
+
+impl<'a> MatRef<'a> {
+    /// The row-major `rows × cols` matrix `data`.
+    fn new(data: &'a [f32], rows: usize, cols: usize) -> Self {
+        Self { data, rows, cols, row_stride: cols, col_stride: 1 }
+    }
+
+    /// The transpose (a strided view of the same values).
+    fn t(self) -> Self {
+        Self { rows: self.cols, cols: self.rows, row_stride: self.col_stride, col_stride: self.row_stride, ..self }
+    }
+
+    /// Whether every element lies inside `data`.
+    fn in_bounds(&self) -> bool {
+        self.rows == 0
+            || self.cols == 0
+            || (self.rows - 1) * self.row_stride + (self.cols - 1) * self.col_stride < self.data.len()
+    }
+}
+
+/// `dst = a · b` (`dst += a · b` when `accumulate`), `dst` row-major `[a.rows, b.cols]`, on the
+/// calling thread.
+///
+/// Panics when the shapes do not match or a view reaches outside its slice (the callers pass
+/// the op's checked shapes).
+fn matmul(dst: &mut [f32], a: MatRef, b: MatRef, accumulate: bool) {
+    let (m, k, n) = (a.rows, a.cols, b.cols);
+    assert!(
+        b.rows == k && dst.len() == m * n && a.in_bounds() && b.in_bounds(),
+        "matmul: [{m}, {k}] · [{}, {n}] into {} values",
+        b.rows,
+        dst.len()
+    );
+    if m == 0 || n == 0 {
+        return;
+    }
+    // SAFETY: the assertion bounds every element gemm reads (`a`, `b`: in_bounds) and writes
+    // (`dst`: m rows of n contiguous values); `dst` is borrowed mutably, so it aliases neither.
+    unsafe {
+        gemm::gemm(
+            m,
+            n,
+            k,
+            dst.as_mut_ptr(),
+            1,
+            n as isize,
+            accumulate,
+            a.data.as_ptr(),
+            a.col_stride as isize,
+            a.row_stride as isize,
+            b.data.as_ptr(),
+            b.col_stride as isize,
+            b.row_stride as isize,
+            1.0f32,
+            1.0f32,
+            false,
+            false,
+            false,
+            gemm::Parallelism::None,
+        )
+    }
+}
+
+/// `dst = a · b` (or `+=`) for row-major `a` `[n, k]` and any `b` `[k, o]`, in parallel over
+/// fixed blocks of `a`'s rows.
+fn matmul_rows(dst: &mut [f32], a: &[f32], k: usize, b: MatRef, accumulate: bool) {
+    let o = b.cols;
+    if o == 0 || k == 0 {
+        if !accumulate {
+            dst.fill(0.0);
+        }
+        return;
+    }
+    dst.par_chunks_mut(PRODUCT_BLOCK_ROWS * o).zip(a.par_chunks(PRODUCT_BLOCK_ROWS * k)).for_each(|(d, a)| {
+        matmul(d, MatRef::new(a, a.len() / k, k), b, accumulate);
+    });
 }
 
 /// `y = act(x w + b)` for `x` `[n, i]`, `w` `[i, o]`, `b` `[o]`: `[n, o]`.
@@ -21,10 +106,7 @@ pub fn forward(x: &[f32], w: &[f32], b: &[f32], n: usize, relu: bool) -> Vec<f32
     for _ in 0..n {
         y.extend_from_slice(b);
     }
-    {
-        let mut yv = ArrayViewMut2::from_shape((n, o), &mut y[..]).expect("n · o values");
-        general_mat_mul(1.0, &view2(x, n, i), &view2(w, i, o), 1.0, &mut yv);
-    }
+    matmul_rows(&mut y, &x[..n * i], i, MatRef::new(w, i, o), true);
     if relu {
         y.par_chunks_mut(1 << 14).for_each(|c| c.iter_mut().for_each(|v| *v = v.max(0.0)));
     }
@@ -49,23 +131,25 @@ pub fn backward(
     } else {
         gy.to_vec()
     };
-    let gzv = view2(&gz, n, o);
+    // ∂w = xᵀ gz: one product per row block, summed in block order.
+    let partial: Vec<Vec<f32>> = x[..n * i]
+        .par_chunks(PRODUCT_BLOCK_ROWS * i.max(1))
+        .zip(gz.par_chunks(PRODUCT_BLOCK_ROWS * o.max(1)))
+        .map(|(xb, gb)| {
+            let rows = gb.len() / o.max(1);
+            let mut p = vec![0.0f32; i * o];
+            matmul(&mut p, MatRef::new(xb, rows, i).t(), MatRef::new(gb, rows, o), false);
+            p
+        })
+        .collect();
     let mut gw = vec![0.0f32; i * o];
-    general_mat_mul(
-        1.0,
-        &view2(x, n, i).t(),
-        &gzv,
-        0.0,
-        &mut ArrayViewMut2::from_shape((i, o), &mut gw[..]).expect("i · o values"),
-    );
+    for p in &partial {
+        for (a, v) in gw.iter_mut().zip(p) {
+            *a += v;
+        }
+    }
     let mut gx = vec![0.0f32; n * i];
-    general_mat_mul(
-        1.0,
-        &gzv,
-        &view2(w, i, o).t(),
-        0.0,
-        &mut ArrayViewMut2::from_shape((n, i), &mut gx[..]).expect("n · i values"),
-    );
+    matmul_rows(&mut gx, &gz, o, MatRef::new(w, i, o).t(), false);
     (gx, gw, column_sums(&gz, o))
 }
 
@@ -169,5 +253,24 @@ mod tests {
             close(&gw, &gw_ref, 1e-5);
             close(&gb, &gb_ref, 1e-5);
         }
+    }
+
+    #[test]
+    fn fused_linear_gives_the_same_bits_on_one_and_on_three_threads() {
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let (n, i, o) = (3 * PRODUCT_BLOCK_ROWS + 11, 24, 64);
+        let x: Vec<f32> = (0..n * i).map(|_| rng.random_range(-1.0f32..1.0)).collect();
+        let w: Vec<f32> = (0..i * o).map(|_| rng.random_range(-1.0f32..1.0)).collect();
+        let b: Vec<f32> = (0..o).map(|_| rng.random_range(-0.5f32..0.5)).collect();
+        let gy: Vec<f32> = (0..n * o).map(|_| rng.random_range(-1.0f32..1.0)).collect();
+        let on = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            pool.install(|| {
+                let y = forward(&x, &w, &b, n, true);
+                let grads = backward(&x, &w, &y, &gy, n, o, true);
+                (y, grads)
+            })
+        };
+        assert_eq!(on(1), on(3));
     }
 }
