@@ -28,10 +28,11 @@ fn levels(c: &HashGridConfig) -> Vec<Level> {
         .collect()
 }
 
-/// Corner table rows and trilinear weights of a point at one level, and the weight derivatives
-/// with respect to the point (zero where the point was clamped).
+/// Corner table rows of a point at one level (corner `k` = `x + 2y + 4z`), the per-axis
+/// trilinear factors `a[d] = [1 − frac_d, frac_d]`, and per axis `∂frac_d/∂u_d` (the resolution,
+/// zero where the point was clamped).
 #[inline(always)]
-fn corners(lv: &Level, mask: i64, u: [f32; 3]) -> ([usize; 8], [f32; 8], [[f32; 3]; 8]) {
+fn corner_rows(lv: &Level, mask: i64, u: [f32; 3]) -> ([usize; 8], [[f32; 2]; 3], [f32; 3]) {
     let mut inside = [1.0f32; 3];
     let mut frac = [0.0f32; 3];
     let mut cell = [0i64; 3];
@@ -46,30 +47,39 @@ fn corners(lv: &Level, mask: i64, u: [f32; 3]) -> ([usize; 8], [f32; 8], [[f32; 
         cell[d] = f as i64;
         frac[d] = p - f;
     }
-    // Per axis, the two corner offsets' index terms, weights and weight signs; a corner's
-    // values are products of one entry per axis (the same products, in the same order, as
-    // the obvious per-corner loop).
+    // Per axis, the two corner offsets' index terms; a corner's index combines one per axis.
     let hash = [1i64, HASH_P1, HASH_P2];
     let dense_stride = [1i64, lv.r1, lv.r1 * lv.r1];
     let term: [[i64; 2]; 3] = std::array::from_fn(|d| {
         let c = [cell[d], cell[d] + 1];
         if lv.dense { c.map(|v| v * dense_stride[d]) } else { c.map(|v| v.wrapping_mul(hash[d])) }
     });
-    let a: [[f32; 2]; 3] = std::array::from_fn(|d| [1.0 - frac[d], frac[d]]);
-    const SIGN: [f32; 2] = [-1.0, 1.0];
     let mut rows = [0usize; 8];
+    for (k, row) in rows.iter_mut().enumerate() {
+        let (x, y, z) = (k & 1, (k >> 1) & 1, (k >> 2) & 1);
+        let idx =
+            if lv.dense { term[0][x] + term[1][y] + term[2][z] } else { (term[0][x] ^ term[1][y] ^ term[2][z]) & mask };
+        *row = lv.base + idx as usize;
+    }
+    let a: [[f32; 2]; 3] = std::array::from_fn(|d| [1.0 - frac[d], frac[d]]);
+    (rows, a, std::array::from_fn(|d| lv.res * inside[d]))
+}
+
+/// Corner table rows and trilinear weights of a point at one level, and the weight derivatives
+/// with respect to the point (zero where the point was clamped).
+#[inline(always)]
+fn corners(lv: &Level, mask: i64, u: [f32; 3]) -> ([usize; 8], [f32; 8], [[f32; 3]; 8]) {
+    let (rows, a, s) = corner_rows(lv, mask, u);
+    const SIGN: [f32; 2] = [-1.0, 1.0];
     let mut w = [0.0f32; 8];
     let mut dw = [[0.0f32; 3]; 8];
     for k in 0..8 {
         let (x, y, z) = (k & 1, (k >> 1) & 1, (k >> 2) & 1);
-        let idx =
-            if lv.dense { term[0][x] + term[1][y] + term[2][z] } else { (term[0][x] ^ term[1][y] ^ term[2][z]) & mask };
-        rows[k] = lv.base + idx as usize;
         w[k] = a[0][x] * a[1][y] * a[2][z];
         dw[k] = [
-            SIGN[x] * a[1][y] * a[2][z] * lv.res * inside[0],
-            a[0][x] * SIGN[y] * a[2][z] * lv.res * inside[1],
-            a[0][x] * a[1][y] * SIGN[z] * lv.res * inside[2],
+            SIGN[x] * a[1][y] * a[2][z] * s[0],
+            a[0][x] * SIGN[y] * a[2][z] * s[1],
+            a[0][x] * a[1][y] * SIGN[z] * s[2],
         ];
     }
     (rows, w, dw)
@@ -194,6 +204,144 @@ fn backward_level(
     gu
 }
 
+/// [`encode`] and the encoding's Jacobian with respect to `u`, for training: the Jacobian is
+/// level-major, `[L · N·F·3]` (level `l`, point `i`, feature `f`, axis `d` at
+/// `((l·N + i)·F + f)·3 + d`), so that [`encode_backward_from_jacobian_into`] reads no table:
+/// the backward's table reads cost as much as its scatter, and the forward has the corner values
+/// at hand already.
+pub fn encode_with_jacobian(c: &HashGridConfig, u: &[f32], tables: &[f32]) -> (Vec<f32>, Vec<f32>) {
+    let lv = levels(c);
+    let (l_n, f_n) = (c.levels, c.features);
+    let stride = c.rows();
+    let mask = c.table_size() - 1;
+    let n = u.len() / 3;
+    let mut jacobian = vec![0.0f32; l_n * n * f_n * 3];
+    let by_level: Vec<Vec<f32>> = jacobian
+        .par_chunks_mut((n * f_n * 3).max(1))
+        .zip(lv.par_iter())
+        .map(|(jac, level)| encode_level_jacobian(level, mask, u, tables, stride, f_n, jac))
+        .collect();
+    let mut out = vec![0.0f32; n * l_n * f_n];
+    out.par_chunks_mut(l_n * f_n).enumerate().for_each(|(i, o)| {
+        for (l, level) in by_level.iter().enumerate() {
+            o[l * f_n..(l + 1) * f_n].copy_from_slice(&level[i * f_n..(i + 1) * f_n]);
+        }
+    });
+    (out, jacobian)
+}
+
+/// The gradients of [`encode_backward_into`] from the Jacobian of [`encode_with_jacobian`]
+/// (`[L · N·F·3]`) instead of the tables: the same table gradient, bit for bit (the same
+/// level-major scatter), and `∂/∂u` as `Σ_l Σ_f grad · J` (the same sum as the table-reading
+/// path up to rounding: it groups the corners per feature first).
+pub fn encode_backward_from_jacobian_into(
+    c: &HashGridConfig,
+    u: &[f32],
+    jacobian: &[f32],
+    grad: &[f32],
+    grad_tables: &mut [f32],
+) -> Vec<f32> {
+    let lv = levels(c);
+    let (l_n, f_n) = (c.levels, c.features);
+    let mask = c.table_size() - 1;
+    let n = u.len() / 3;
+    let mut by_level: Vec<Vec<&mut [f32]>> = (0..l_n).map(|_| Vec::with_capacity(f_n)).collect();
+    for feature in grad_tables.chunks_mut(c.rows()) {
+        let mut rest = feature;
+        for (l, level) in lv.iter().enumerate() {
+            let (rows, tail) = rest.split_at_mut(level.rows);
+            by_level[l].push(rows); // pushed in feature order
+            rest = tail;
+        }
+    }
+    by_level
+        .into_par_iter()
+        .zip(lv.par_iter())
+        .enumerate()
+        .for_each(|(l, (mut features, level))| scatter_level(level, l, mask, u, grad, l_n, &mut features));
+    let mut grad_u = vec![0.0f32; 3 * n];
+    grad_u.par_chunks_mut(3).enumerate().for_each(|(i, gu)| {
+        for l in 0..l_n {
+            let g = &grad[(i * l_n + l) * f_n..(i * l_n + l + 1) * f_n];
+            let j = &jacobian[(l * n + i) * f_n * 3..(l * n + i + 1) * f_n * 3];
+            let mut level_part = [0.0f32; 3];
+            for (f, gf) in g.iter().enumerate() {
+                for d in 0..3 {
+                    level_part[d] += gf * j[3 * f + d];
+                }
+            }
+            for d in 0..3 {
+                gu[d] += level_part[d];
+            }
+        }
+    });
+    grad_u
+}
+
+/// One level of [`encode_with_jacobian`]: returns the encoding `[N·F]` and writes `∂/∂u` per
+/// feature into `jac` (`[N·F·3]`). Per axis the derivative is the corner differences along that
+/// axis weighted by the other two axes' factors (the sum of the corner weights' derivatives
+/// times the corners, grouped by edge).
+#[multiversion::multiversion(targets("x86_64+avx2+fma+sse4.1", "x86_64+sse4.1"))]
+fn encode_level_jacobian(
+    level: &Level,
+    mask: i64,
+    u: &[f32],
+    tables: &[f32],
+    stride: usize,
+    f_n: usize,
+    jac: &mut [f32],
+) -> Vec<f32> {
+    let n = u.len() / 3;
+    let mut o = vec![0.0f32; n * f_n];
+    for (i, (oi, ji)) in o.chunks_exact_mut(f_n).zip(jac.chunks_exact_mut(f_n * 3)).enumerate() {
+        let (rows, a, s) = corner_rows(level, mask, [u[3 * i], u[3 * i + 1], u[3 * i + 2]]);
+        // The corner weights, the same products in the same order as `corners`.
+        let w: [f32; 8] = std::array::from_fn(|k| a[0][k & 1] * a[1][(k >> 1) & 1] * a[2][k >> 2]);
+        // Edge e along x joins corners 2e and 2e + 1 (y = e & 1, z = e >> 1); along y corners
+        // p + 4q and p + 4q + 2 (x = p, z = q); along z corners p + 2q and p + 2q + 4 (x = p,
+        // y = q), with p = e & 1, q = e >> 1. Each edge's weight is the other two axes' factors.
+        let ex: [f32; 4] = std::array::from_fn(|e| a[1][e & 1] * a[2][e >> 1] * s[0]);
+        let ey: [f32; 4] = std::array::from_fn(|e| a[0][e & 1] * a[2][e >> 1] * s[1]);
+        let ez: [f32; 4] = std::array::from_fn(|e| a[0][e & 1] * a[1][e >> 1] * s[2]);
+        // All features' corners first (up to 8 features), so that their loads overlap.
+        let mut corner_values = [[0.0f32; 8]; 8];
+        for (f, v) in corner_values.iter_mut().enumerate().take(f_n) {
+            let t = &tables[f * stride..(f + 1) * stride];
+            *v = std::array::from_fn(|k| t[rows[k]]);
+        }
+        for (f, v) in corner_values.iter().enumerate().take(f_n) {
+            oi[f] = (0..8).map(|k| w[k] * v[k]).sum();
+            let (mut jx, mut jy, mut jz) = (0.0f32, 0.0f32, 0.0f32);
+            for e in 0..4 {
+                let (p, q) = (e & 1, e >> 1);
+                jx += ex[e] * (v[2 * e + 1] - v[2 * e]);
+                jy += ey[e] * (v[p + 4 * q + 2] - v[p + 4 * q]);
+                jz += ez[e] * (v[p + 2 * q + 4] - v[p + 2 * q]);
+            }
+            ji[3 * f..3 * f + 3].copy_from_slice(&[jx, jy, jz]);
+        }
+    }
+    o
+}
+
+/// One level's table-gradient scatter of [`encode_backward_from_jacobian_into`] (no table
+/// reads): the same additions, in the same order, as [`backward_level`]'s.
+#[multiversion::multiversion(targets("x86_64+avx2+fma+sse4.1", "x86_64+sse4.1"))]
+fn scatter_level(level: &Level, l: usize, mask: i64, u: &[f32], grad: &[f32], l_n: usize, features: &mut [&mut [f32]]) {
+    let n = u.len() / 3;
+    let f_n = features.len();
+    for i in 0..n {
+        let (rows, w, _) = corners(level, mask, [u[3 * i], u[3 * i + 1], u[3 * i + 2]]);
+        let g = &grad[(i * l_n + l) * f_n..(i * l_n + l + 1) * f_n];
+        for k in 0..8 {
+            for (f, slice) in features.iter_mut().enumerate() {
+                slice[rows[k] - level.base] += w[k] * g[f];
+            }
+        }
+    }
+}
+
 /// [`encode_backward_into`] with a fresh table gradient: `(∂/∂u, ∂/∂tables)`.
 pub fn encode_backward(c: &HashGridConfig, u: &[f32], tables: &[f32], grad: &[f32]) -> (Vec<f32>, Vec<f32>) {
     let mut grad_t = vec![0.0f32; tables.len()];
@@ -227,6 +375,25 @@ mod tests {
             }
         }
         out
+    }
+
+    #[test]
+    fn jacobian_path_gives_the_table_reading_gradients() {
+        let c = HashGridConfig { levels: 6, features: 2, log2_table: 10, base_resolution: 4.0, growth: 1.8 };
+        let mut rng = ChaCha8Rng::seed_from_u64(8);
+        let n = 3000;
+        let u: Vec<f32> = (0..3 * n).map(|_| rng.random_range(-0.05f32..1.05)).collect();
+        let tables: Vec<f32> = (0..c.features * c.rows()).map(|_| rng.random_range(-1.0f32..1.0)).collect();
+        let grad: Vec<f32> = (0..n * c.levels * c.features).map(|_| rng.random_range(-1.0f32..1.0)).collect();
+        let (out, jacobian) = encode_with_jacobian(&c, &u, &tables);
+        assert_eq!(out, encode(&c, &u, &tables));
+        let (gu_reading, gt_reading) = encode_backward(&c, &u, &tables, &grad);
+        let mut gt = vec![0.0f32; tables.len()];
+        let gu = encode_backward_from_jacobian_into(&c, &u, &jacobian, &grad, &mut gt);
+        assert_eq!(gt, gt_reading);
+        let scale = gu_reading.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+        let worst = gu.iter().zip(&gu_reading).fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
+        assert!(scale > 1.0 && worst <= 1e-5 * scale, "position gradients differ by {worst} (scale {scale})");
     }
 
     #[test]

@@ -2,6 +2,12 @@
 //! NdArray (burn-ndarray's gather and broadcasting are too slow for millions of corner lookups
 //! per step) and CubeCL kernels for wgpu. `HashGrid::forward_tensor_ops` is the same encoding
 //! composed of plain tensor operations; tests check that both agree.
+//!
+//! Under autodiff the forward saves what the backward needs (`hash_encode_saving`): on the CPU
+//! the encoding's Jacobian with respect to the points, computed from the corner values the
+//! forward reads anyway, so that the backward only scatters into the table gradient and reads
+//! no table (the reads cost as much as the scatter); `hash_encode_backward`, which reads the
+//! tables, stays as the reference the tests compare it with.
 
 #![allow(deprecated)] // burn-ndarray is deprecated in burn 0.22 in favour of burn-flex.
 
@@ -48,6 +54,23 @@ pub trait HashEncodeBackend: Backend {
         grad: FloatTensor<Self>,
         config: HashGridConfig,
     ) -> HashGrads<Self>;
+    /// The encoding for training: `[N, L·F]` and `saved`, what
+    /// [`hash_encode_backward_saved`](HashEncodeBackend::hash_encode_backward_saved) needs
+    /// besides `u` — on the CPU the encoding's Jacobian with respect to `u` (`[L, N·F·3]`, so that
+    /// the backward reads no table), on the GPU the tables.
+    fn hash_encode_saving(
+        u: FloatTensor<Self>,
+        tables: FloatTensor<Self>,
+        config: HashGridConfig,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>);
+    /// The gradients of [`hash_encode_backward`](HashEncodeBackend::hash_encode_backward) from
+    /// what [`hash_encode_saving`](HashEncodeBackend::hash_encode_saving) saved.
+    fn hash_encode_backward_saved(
+        u: FloatTensor<Self>,
+        saved: FloatTensor<Self>,
+        grad: FloatTensor<Self>,
+        config: HashGridConfig,
+    ) -> HashGrads<Self>;
 }
 
 impl HashEncodeBackend for NdArray {
@@ -65,7 +88,6 @@ impl HashEncodeBackend for NdArray {
         config: HashGridConfig,
     ) -> HashGrads<Self> {
         let device = u.device();
-        let n = u.shape()[0];
         let mut grad_t = table_grad_buffer(&tables.shape());
         let gu = {
             let slice = grad_t.as_slice_mut().expect("a fresh or pooled buffer is contiguous");
@@ -73,14 +95,54 @@ impl HashEncodeBackend for NdArray {
                 with_host(&tables, |t| with_host(&grad, |g| cpu::encode_backward_into(&config, u, t, g, slice)))
             })
         };
-        if let Ok(mut pool) = TABLE_GRAD_POOL.lock() {
-            *pool = Some(grad_t.clone());
-        }
-        HashGrads {
-            u: Self::float_from_data(TensorData::new(gu, [n, 3]), &device),
-            tables: NdArrayTensor::from(grad_t),
-        }
+        pooled_grads(gu, grad_t, &device)
     }
+
+    fn hash_encode_saving(
+        u: FloatTensor<Self>,
+        tables: FloatTensor<Self>,
+        config: HashGridConfig,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>) {
+        let device = u.device();
+        let n = u.shape()[0];
+        let (out, jacobian) = with_host(&u, |u| with_host(&tables, |t| cpu::encode_with_jacobian(&config, u, t)));
+        (
+            Self::float_from_data(TensorData::new(out, [n, config.output_dim()]), &device),
+            Self::float_from_data(TensorData::new(jacobian, [config.levels, n * config.features * 3]), &device),
+        )
+    }
+
+    fn hash_encode_backward_saved(
+        u: FloatTensor<Self>,
+        saved: FloatTensor<Self>,
+        grad: FloatTensor<Self>,
+        config: HashGridConfig,
+    ) -> HashGrads<Self> {
+        let device = u.device();
+        let mut grad_t = table_grad_buffer(&burn::tensor::Shape::new([config.features, config.rows()]));
+        let gu = {
+            let slice = grad_t.as_slice_mut().expect("a fresh or pooled buffer is contiguous");
+            with_host(&u, |u| {
+                with_host(&saved, |j| {
+                    with_host(&grad, |g| cpu::encode_backward_from_jacobian_into(&config, u, j, g, slice))
+                })
+            })
+        };
+        pooled_grads(gu, grad_t, &device)
+    }
+}
+
+/// The gradients as tensors; the table gradient's buffer goes back to the pool.
+fn pooled_grads(
+    gu: Vec<f32>,
+    grad_t: ArcArray<f32, IxDyn>,
+    device: &burn::backend::ndarray::NdArrayDevice,
+) -> HashGrads<NdArray> {
+    let n = gu.len() / 3;
+    if let Ok(mut pool) = TABLE_GRAD_POOL.lock() {
+        *pool = Some(grad_t.clone());
+    }
+    HashGrads { u: NdArray::float_from_data(TensorData::new(gu, [n, 3]), device), tables: NdArrayTensor::from(grad_t) }
 }
 
 /// The table gradient's buffer, kept between steps: at paper scale it is 67 MB, and a fresh
@@ -119,6 +181,23 @@ impl HashEncodeBackend for burn_cubecl::CubeBackend {
         let (u, tables) = gpu::encode_backward(u, tables, grad, &config);
         HashGrads { u, tables }
     }
+
+    fn hash_encode_saving(
+        u: FloatTensor<Self>,
+        tables: FloatTensor<Self>,
+        config: HashGridConfig,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>) {
+        (gpu::encode(u, tables.clone(), &config), tables)
+    }
+
+    fn hash_encode_backward_saved(
+        u: FloatTensor<Self>,
+        saved: FloatTensor<Self>,
+        grad: FloatTensor<Self>,
+        config: HashGridConfig,
+    ) -> HashGrads<Self> {
+        Self::hash_encode_backward(u, saved, grad, config)
+    }
 }
 
 #[derive(Debug)]
@@ -130,8 +209,8 @@ impl<B: Backend + HashEncodeBackend> Backward<B, 2> for EncodeBackward {
     fn backward(self, ops: Ops<Self::State, 2>, grads: &mut Gradients, _checkpointer: &mut Checkpointer) {
         let [node_u, node_t] = ops.parents;
         let grad = grads.consume::<B>(&ops.node);
-        let (u, tables, config) = ops.state;
-        let g = B::hash_encode_backward(u, tables, grad, config);
+        let (u, saved, config) = ops.state;
+        let g = B::hash_encode_backward_saved(u, saved, grad, config);
         if let Some(n) = node_u {
             grads.register::<B>(n.id, g.u);
         }
@@ -145,9 +224,9 @@ impl<B: Backend + HashEncodeBackend, C: CheckpointStrategy> HashEncodeBackend fo
     fn hash_encode(u: FloatTensor<Self>, tables: FloatTensor<Self>, config: HashGridConfig) -> FloatTensor<Self> {
         match EncodeBackward.prepare::<C>([u.node(), tables.node()]).compute_bound().stateful() {
             OpsKind::Tracked(prep) => {
-                let (u, t) = (u.into_primitive(), tables.into_primitive());
-                let out = B::hash_encode(u.clone(), t.clone(), config);
-                prep.finish((u, t, config), out)
+                let u = u.into_primitive();
+                let (out, saved) = B::hash_encode_saving(u.clone(), tables.into_primitive(), config);
+                prep.finish((u, saved, config), out)
             }
             OpsKind::UnTracked(prep) => {
                 prep.finish(B::hash_encode(u.into_primitive(), tables.into_primitive(), config))
@@ -162,6 +241,26 @@ impl<B: Backend + HashEncodeBackend, C: CheckpointStrategy> HashEncodeBackend fo
         config: HashGridConfig,
     ) -> HashGrads<Self> {
         let g = B::hash_encode_backward(u.into_primitive(), tables.into_primitive(), grad.into_primitive(), config);
+        HashGrads { u: Self::from_inner(g.u), tables: Self::from_inner(g.tables) }
+    }
+
+    fn hash_encode_saving(
+        u: FloatTensor<Self>,
+        tables: FloatTensor<Self>,
+        config: HashGridConfig,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>) {
+        let (out, saved) = B::hash_encode_saving(u.into_primitive(), tables.into_primitive(), config);
+        (Self::from_inner(out), Self::from_inner(saved))
+    }
+
+    fn hash_encode_backward_saved(
+        u: FloatTensor<Self>,
+        saved: FloatTensor<Self>,
+        grad: FloatTensor<Self>,
+        config: HashGridConfig,
+    ) -> HashGrads<Self> {
+        let g =
+            B::hash_encode_backward_saved(u.into_primitive(), saved.into_primitive(), grad.into_primitive(), config);
         HashGrads { u: Self::from_inner(g.u), tables: Self::from_inner(g.tables) }
     }
 }
