@@ -1,5 +1,6 @@
 //! `ctadsa`: complete a patient's 3-D cerebral vessel tree from a CTA prior and DSA views.
 
+mod allocator;
 mod backend;
 mod bench;
 mod bench_suite;
@@ -59,6 +60,7 @@ enum Command {
 }
 
 fn main() -> Result<()> {
+    allocator::keep_freed_memory();
     backend::prefer_cpu_default_device();
     let cli = Cli::parse();
     match cli.command {
