@@ -314,6 +314,15 @@ pub struct OutputConfig {
     /// the prior by a path of density ≥ this fraction × the iso-level (26-connected). 0 = off.
     /// Needs a prior.
     pub connected_level_fraction: f64,
+    /// Faint vessels at their own scale (`docs/RESULTS.md`): with `level_from_views`, a second,
+    /// lower level is picked the same way from the views' masks at this threshold, and the
+    /// level is lowered locally towards it where the density's local maximum (within
+    /// `faint_radius_mm`) is low: the surface is cut at `faint_fraction` × that maximum,
+    /// between the two levels. 0 = off. 0.02 / 0.7 / 1 mm scored best of the five settings
+    /// measured (docs/RESULTS.md, "Faint vessels at their own level").
+    pub faint_mask_threshold: f64,
+    pub faint_fraction: f64,
+    pub faint_radius_mm: f64,
     /// Centreline (`centreline.swc` / `.vtp`, TEASAR on the completed solid): each traced
     /// path covers the voxels within `centreline_scale` × the vessel radius +
     /// `centreline_const_mm` of it (larger: fewer, longer branches).
@@ -337,6 +346,9 @@ impl Default for OutputConfig {
             keep_prior: true,
             keep_prior_mm: 0.3,
             connected_level_fraction: 0.0,
+            faint_mask_threshold: 0.02,
+            faint_fraction: 0.7,
+            faint_radius_mm: 1.0,
             centreline_scale: 1.5,
             centreline_const_mm: 1.0,
             centreline_min_branch_mm: 1.0,
@@ -549,6 +561,17 @@ impl Config {
             "must be in [0, 1]",
         )?;
         check(self.output.mc_level > 0.0, "output.mc_level", "must be > 0")?;
+        check(
+            (0.0..1.0).contains(&self.output.faint_mask_threshold),
+            "output.faint_mask_threshold",
+            "must be in [0, 1)",
+        )?;
+        check(
+            self.output.faint_fraction > 0.0 && self.output.faint_fraction <= 1.0,
+            "output.faint_fraction",
+            "must be in (0, 1]",
+        )?;
+        check((0.0..=10.0).contains(&self.output.faint_radius_mm), "output.faint_radius_mm", "must be in [0, 10] mm")?;
         check(
             self.output.keep_prior_mm >= 0.0 && self.output.keep_prior_mm <= 100.0,
             "output.keep_prior_mm",

@@ -28,8 +28,8 @@ use crate::method::model::host_vec;
 use crate::method::train::{StepLog, Trainer};
 use crate::output::centreline::{CentrelineSummary, SolidPart, completed_centreline, write_centreline};
 use crate::output::extraction::{
-    LevelScore, best_level, completed_solid, density_scale, join_prior, keep_connected_to_prior, prior_solid,
-    score_levels,
+    LevelScore, best_level, completed_solid, density_scale, faint_level_field, join_prior, keep_connected_to_prior,
+    prior_solid, score_levels,
 };
 use crate::output::plot::{PALETTE, Series, line_plot};
 use ctadsa_render::ConeBeamView;
@@ -47,6 +47,9 @@ pub struct RunSummary {
     pub mc_level: f64,
     /// With `output.level_from_views`: every candidate level and its silhouette Dice.
     pub level_scores: Vec<LevelScore>,
+    /// With `output.faint_mask_threshold`: the lower level the faint vessels may go down to
+    /// (density units).
+    pub faint_level: Option<f64>,
     pub mesh_triangles: usize,
     /// Connected components dropped as floaters (`output.min_island_mm2`) or as not linked
     /// to the prior (`output.connected_level_fraction`).
@@ -210,6 +213,7 @@ pub fn write_outputs(dir: &Path, case: &Case, trainer: &Trainer) -> Result<RunSu
         n2: trainer.n2,
         mc_level: surface.level,
         level_scores: surface.level_scores,
+        faint_level: surface.faint_level,
         mesh_triangles: mesh.faces.len(),
         islands_dropped: surface.islands_dropped,
         final_loss: trainer.history.last().map_or(f64::NAN, |s| s.loss),
@@ -253,6 +257,11 @@ struct CompletedSurface {
     /// Iso-level (density units).
     level: f64,
     level_scores: Vec<LevelScore>,
+    faint_level: Option<f64>,
+    /// What was cut at `field_level` (the density, or with faint vessels the density over the
+    /// local level, at 1).
+    field: Option<Volume<f32>>,
+    field_level: f64,
     islands_dropped: usize,
     /// The extracted iso-surface (islands dropped) before the prior is joined.
     extracted: TriMesh,
@@ -282,7 +291,17 @@ fn extract_completed_surface(
         Some(best) => best.level,
         None => mc_level(volume, out.mc_level, out.mc_relative),
     };
-    let raw_mesh = extract_isosurface(volume, level as f32);
+    let faint = (out.faint_mask_threshold > 0.0 && out.level_from_views).then(|| {
+        let scores =
+            score_levels(volume, trainer.views.views(), &trainer.images, out.faint_mask_threshold, solid.as_ref());
+        let low = best_level(&scores).map_or(level, |b| b.level.min(level));
+        let radius = (out.faint_radius_mm / volume.grid.spacing_mm[0]).round() as usize;
+        (low, faint_level_field(volume, level, low, out.faint_fraction, radius))
+    });
+    let (faint_level, field) = faint.map_or((None, None), |(low, field)| (Some(low), Some(field)));
+    let field_level = if field.is_some() { 1.0 } else { level };
+    let cut = field.as_ref().unwrap_or(volume);
+    let raw_mesh = extract_isosurface(cut, field_level as f32);
     let (extracted, islands_dropped) = if out.min_island_mm2 > 0.0 {
         let (kept, dropped) = raw_mesh.without_islands_below(out.min_island_mm2);
         write_mesh(&dir.join(format!("mesh-raw.{}", out.mesh_format)), &raw_mesh)?;
@@ -300,7 +319,8 @@ fn extract_completed_surface(
                     &voxelised
                 }
             };
-            let (kept, dropped) = keep_connected_to_prior(&extracted, volume, out.connected_level_fraction * level, s);
+            let (kept, dropped) =
+                keep_connected_to_prior(&extracted, cut, out.connected_level_fraction * field_level, s);
             (kept, islands_dropped + dropped)
         }
         _ => (extracted, islands_dropped),
@@ -313,7 +333,17 @@ fn extract_completed_surface(
         _ => extracted.clone(),
     };
     write_mesh(&dir.join(format!("mesh.{}", out.mesh_format)), &mesh)?;
-    Ok(CompletedSurface { mesh, level, level_scores, islands_dropped, extracted, kept_prior: solid })
+    Ok(CompletedSurface {
+        mesh,
+        level,
+        level_scores,
+        faint_level,
+        field,
+        field_level,
+        islands_dropped,
+        extracted,
+        kept_prior: solid,
+    })
 }
 
 /// The centreline of the completed solid, written and scored ([`write_centreline`]).
@@ -325,7 +355,7 @@ fn write_centreline_of(
     out: &OutputConfig,
     truth: Option<&CaseTruth>,
 ) -> Result<CentrelineSummary> {
-    let above_level = completed_solid(volume, surface.level, None);
+    let above_level = completed_solid(surface.field.as_ref().unwrap_or(volume), surface.field_level, None);
     let voxelised;
     let prior_voxels = match (&surface.kept_prior, prior) {
         (Some(kept), _) => Some(kept),

@@ -4,7 +4,10 @@
 //! - the prior kept: the completed surface is the prior mesh joined with the new vessels of the
 //!   extracted surface (its faces outside the prior and farther than a margin from it);
 //! - optionally, only the pieces of the extracted surface that the density connects to the
-//!   prior: a vessel tree is connected, while the ghosts of a few views float free.
+//!   prior: a vessel tree is connected, while the ghosts of a few views float free;
+//! - optionally, faint vessels at their own scale: a thin vessel's density peaks below the level
+//!   the thick ones set, so the level is lowered locally (down to a second level from the
+//!   views) where the density's local maximum is low, and stays where it is high.
 
 use ctadsa_render::ConeBeamView;
 use glam::DVec3;
@@ -224,5 +227,102 @@ mod tests {
         let mesh = extract_isosurface(&density, 0.5);
         assert_eq!(keep_connected_to_prior(&mesh, &density, 0.05, &solid).1, 0);
         assert_eq!(keep_connected_to_prior(&mesh, &density, 0.2, &solid).1, 1);
+    }
+}
+
+/// The density divided by a local level, to extract at 1: the local level is `fraction` × the
+/// density's maximum within `radius` voxels (a cube), clamped to `[low, level]`. Around thick
+/// vessels (local maximum ≥ `level / fraction`) this is the plain level; a faint vessel alone
+/// is cut at `fraction` of its own peak, never below `low`. `low` and `level` are density
+/// units, `0 < low ≤ level`.
+pub fn faint_level_field(volume: &Volume<f32>, level: f64, low: f64, fraction: f64, radius: usize) -> Volume<f32> {
+    let local_max = max_filter(&volume.data, volume.grid.dims, radius);
+    let (low, level) = (low.min(level) as f32, level as f32);
+    let data = volume.data.iter().zip(&local_max).map(|(&d, &m)| d / (fraction as f32 * m).clamp(low, level)).collect();
+    Volume { grid: volume.grid, index_to_world: volume.index_to_world, data }
+}
+
+/// The maximum over a cube of half-width `radius` voxels (separable, one axis at a time);
+/// `data` is indexed `(i · ny + j) · nz + k` for `dims = [nx, ny, nz]`.
+fn max_filter(data: &[f32], dims: [usize; 3], radius: usize) -> Vec<f32> {
+    let strides = [dims[1] * dims[2], dims[2], 1];
+    let mut current = data.to_vec();
+    for axis in 0..3 {
+        let (n, stride) = (dims[axis], strides[axis]);
+        let mut next = vec![0.0f32; current.len()];
+        for (start, out) in next.iter_mut().enumerate() {
+            let along = (start / stride) % n;
+            let first = start - along.min(radius) * stride;
+            let count = along.min(radius) + (n - 1 - along).min(radius) + 1;
+            *out = (0..count).map(|s| current[first + s * stride]).fold(f32::NEG_INFINITY, f32::max);
+        }
+        current = next;
+    }
+    current
+}
+
+#[cfg(test)]
+mod faint_tests {
+    use super::*;
+    use crate::data::volume::Grid;
+
+    fn volume(dims: [usize; 3], f: impl Fn(usize, usize, usize) -> f32) -> Volume<f32> {
+        let grid = Grid { dims, spacing_mm: [1.0; 3], origin_mm: [0.0; 3] };
+        let mut data = vec![0.0f32; dims[0] * dims[1] * dims[2]];
+        for i in 0..dims[0] {
+            for j in 0..dims[1] {
+                for k in 0..dims[2] {
+                    data[grid.index(i, j, k)] = f(i, j, k);
+                }
+            }
+        }
+        Volume { grid, index_to_world: grid.index_to_world(), data }
+    }
+
+    #[test]
+    fn max_filter_equals_the_brute_force_cube_maximum() {
+        let dims = [7, 5, 6];
+        let v = volume(dims, |i, j, k| ((i * 31 + j * 17 + k * 7) % 11) as f32);
+        let filtered = max_filter(&v.data, dims, 2);
+        for i in 0..dims[0] {
+            for j in 0..dims[1] {
+                for k in 0..dims[2] {
+                    let mut m = f32::NEG_INFINITY;
+                    for a in i.saturating_sub(2)..=(i + 2).min(dims[0] - 1) {
+                        for b in j.saturating_sub(2)..=(j + 2).min(dims[1] - 1) {
+                            for c in k.saturating_sub(2)..=(k + 2).min(dims[2] - 1) {
+                                m = m.max(v.data[v.grid.index(a, b, c)]);
+                            }
+                        }
+                    }
+                    assert_eq!(filtered[v.grid.index(i, j, k)], m, "voxel {i} {j} {k}");
+                }
+            }
+        }
+    }
+
+    /// A thick vessel (peak 1) keeps the plain level; a faint one (peak 0.2, below the level
+    /// 0.3) is extracted around its own peak; a faint blob below `low` stays out.
+    #[test]
+    fn faint_vessels_are_cut_at_their_own_scale_and_thick_ones_at_the_level() {
+        let profile = |d: f32, peak: f32| peak * (-d * d / 2.0).exp();
+        let v = volume([40, 9, 9], |i, j, k| {
+            let d = ((j as f32 - 4.0).powi(2) + (k as f32 - 4.0).powi(2)).sqrt();
+            match i {
+                0..=9 => profile(d, 1.0),
+                20..=29 => profile(d, 0.2),
+                _ => profile(d, 0.04),
+            }
+        });
+        let f = faint_level_field(&v, 0.3, 0.05, 0.5, 2);
+        let inside = |i: usize, j: usize| f.data[f.grid.index(i, j, 4)] >= 1.0;
+        // Thick: the plain level 0.3 (profile ≥ 0.3 out to d ≈ 1.55: voxels 3..=5 in j).
+        assert!(inside(5, 4) && inside(5, 5) && !inside(5, 6));
+        // Faint: half its own peak (0.1 out to d ≈ 1.18): its axis and the next voxel.
+        assert!(inside(25, 4) && inside(25, 5) && !inside(25, 6));
+        // Below `low` everywhere: nothing.
+        assert!((32..40).all(|i| !inside(i, 4)));
+        // With the plain level the faint vessel is not there at all.
+        assert!(v.data[v.grid.index(25, 4, 4)] < 0.3);
     }
 }
