@@ -45,9 +45,5 @@ fn shipped_configs_load_and_matrices_point_at_them() {
     cpu.densify.until = quick.densify.until;
     cpu.densify.every = quick.densify.every;
     cpu.densify.max_gaussians = quick.densify.max_gaussians;
-    assert_eq!(
-        format!("{cpu:?}"),
-        format!("{quick:?}"),
-        "cpu.toml changes only the budget"
-    );
+    assert_eq!(format!("{cpu:?}"), format!("{quick:?}"), "cpu.toml changes only the budget");
 }
