@@ -85,6 +85,21 @@ fn corners(lv: &Level, mask: i64, u: [f32; 3]) -> ([usize; 8], [f32; 8], [[f32; 
     (rows, w, dw)
 }
 
+/// The table gradient `[F · R]` (rows `stride` per feature) split per level into that level's
+/// per-feature row slices, in feature order: what one level's task may write.
+fn split_by_level<'a>(lv: &[Level], stride: usize, grad_tables: &'a mut [f32]) -> Vec<Vec<&'a mut [f32]>> {
+    let mut by_level: Vec<Vec<&mut [f32]>> = lv.iter().map(|_| Vec::new()).collect();
+    for feature in grad_tables.chunks_mut(stride) {
+        let mut rest = feature;
+        for (l, level) in lv.iter().enumerate() {
+            let (rows, tail) = rest.split_at_mut(level.rows);
+            by_level[l].push(rows);
+            rest = tail;
+        }
+    }
+    by_level
+}
+
 /// Encodes `u` (`[N·3]`) with `tables` (`[F · R]`, feature-major): `[N · L·F]`.
 ///
 /// Level-major: one task per level reads that level's `F × T` table slice for every point, so
@@ -123,19 +138,11 @@ pub fn encode_backward_into(
     grad_tables: &mut [f32],
 ) -> Vec<f32> {
     let lv = levels(c);
-    let (l_n, f_n) = (c.levels, c.features);
+    let l_n = c.levels;
     let stride = c.rows();
     let mask = c.table_size() - 1;
     let n = u.len() / 3;
-    let mut by_level: Vec<Vec<&mut [f32]>> = (0..l_n).map(|_| Vec::with_capacity(f_n)).collect();
-    for feature in grad_tables.chunks_mut(stride) {
-        let mut rest = feature;
-        for (l, level) in lv.iter().enumerate() {
-            let (rows, tail) = rest.split_at_mut(level.rows);
-            by_level[l].push(rows); // pushed in feature order
-            rest = tail;
-        }
-    }
+    let by_level = split_by_level(&lv, stride, grad_tables);
     let grad_u_by_level: Vec<Vec<f32>> = by_level
         .into_par_iter()
         .zip(lv.par_iter())
@@ -245,15 +252,7 @@ pub fn encode_backward_from_jacobian_into(
     let (l_n, f_n) = (c.levels, c.features);
     let mask = c.table_size() - 1;
     let n = u.len() / 3;
-    let mut by_level: Vec<Vec<&mut [f32]>> = (0..l_n).map(|_| Vec::with_capacity(f_n)).collect();
-    for feature in grad_tables.chunks_mut(c.rows()) {
-        let mut rest = feature;
-        for (l, level) in lv.iter().enumerate() {
-            let (rows, tail) = rest.split_at_mut(level.rows);
-            by_level[l].push(rows); // pushed in feature order
-            rest = tail;
-        }
-    }
+    let by_level = split_by_level(&lv, c.rows(), grad_tables);
     by_level
         .into_par_iter()
         .zip(lv.par_iter())
