@@ -65,6 +65,64 @@ fn corner_rows(lv: &Level, mask: i64, u: [f32; 3]) -> ([usize; 8], [[f32; 2]; 3]
     (rows, a, std::array::from_fn(|d| lv.res * inside[d]))
 }
 
+/// How many points ahead the level loops compute corner rows and prefetch them: a point's 8·F
+/// table reads are random, and waiting for each in turn would leave the core idle.
+const AHEAD: usize = 8;
+
+/// Asks the CPU to bring `slice[i]` into cache (a hint: no effect on results, no fault).
+#[inline(always)]
+fn prefetch(slice: &[f32], i: usize) {
+    #[cfg(target_arch = "x86_64")]
+    if let Some(v) = slice.get(i) {
+        use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+        // SAFETY: the pointer comes from a live reference; a prefetch reads nothing observable
+        // and cannot fault.
+        unsafe { _mm_prefetch::<_MM_HINT_T0>(std::ptr::from_ref(v).cast::<i8>()) };
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = (slice, i);
+}
+
+/// Corner rows, per-axis factors and axis scales of one point ([`corner_rows`]).
+type CornerRows = ([usize; 8], [[f32; 2]; 3], [f32; 3]);
+
+/// [`corner_rows`] of every point of `u` (`[N·3]`), handed out in order while the rows of the
+/// point [`AHEAD`] places later are being prefetched (by the caller's `fetch(row)`).
+struct CornerPipeline<'a> {
+    level: &'a Level,
+    mask: i64,
+    u: &'a [f32],
+    ring: [CornerRows; AHEAD],
+}
+
+impl<'a> CornerPipeline<'a> {
+    fn new(level: &'a Level, mask: i64, u: &'a [f32], mut fetch: impl FnMut(usize)) -> Self {
+        let mut pipe = Self { level, mask, u, ring: [([0; 8], [[0.0; 2]; 3], [0.0; 3]); AHEAD] };
+        for i in 0..AHEAD.min(u.len() / 3) {
+            pipe.fill(i, &mut fetch);
+        }
+        pipe
+    }
+
+    #[inline(always)]
+    fn fill(&mut self, i: usize, fetch: &mut impl FnMut(usize)) {
+        let u = self.u;
+        let entry = corner_rows(self.level, self.mask, [u[3 * i], u[3 * i + 1], u[3 * i + 2]]);
+        entry.0.iter().for_each(|&row| fetch(row));
+        self.ring[i % AHEAD] = entry;
+    }
+
+    /// Point `i`'s corners (points must be asked for in order, from 0).
+    #[inline(always)]
+    fn take(&mut self, i: usize, mut fetch: impl FnMut(usize)) -> CornerRows {
+        let entry = self.ring[i % AHEAD];
+        if i + AHEAD < self.u.len() / 3 {
+            self.fill(i + AHEAD, &mut fetch);
+        }
+        entry
+    }
+}
+
 /// Corner table rows and trilinear weights of a point at one level, and the weight derivatives
 /// with respect to the point (zero where the point was clamped).
 #[inline(always)]
@@ -165,8 +223,12 @@ pub fn encode_backward_into(
 fn encode_level(level: &Level, mask: i64, u: &[f32], tables: &[f32], stride: usize, f_n: usize) -> Vec<f32> {
     let n = u.len() / 3;
     let mut o = vec![0.0f32; n * f_n];
+    let fetch = |row: usize| (0..f_n).for_each(|f| prefetch(tables, f * stride + row));
+    let mut pipe = CornerPipeline::new(level, mask, u, fetch);
     for (i, oi) in o.chunks_exact_mut(f_n).enumerate() {
-        let (rows, w, _) = corners(level, mask, [u[3 * i], u[3 * i + 1], u[3 * i + 2]]);
+        let (rows, a, _) = pipe.take(i, fetch);
+        // The corner weights, the same products in the same order as `corners`.
+        let w: [f32; 8] = std::array::from_fn(|k| a[0][k & 1] * a[1][(k >> 1) & 1] * a[2][k >> 2]);
         for (f, v) in oi.iter_mut().enumerate() {
             let t = &tables[f * stride..(f + 1) * stride];
             *v = (0..8).map(|k| w[k] * t[rows[k]]).sum();
@@ -293,8 +355,10 @@ fn encode_level_jacobian(
 ) -> Vec<f32> {
     let n = u.len() / 3;
     let mut o = vec![0.0f32; n * f_n];
+    let fetch = |row: usize| (0..f_n).for_each(|f| prefetch(tables, f * stride + row));
+    let mut pipe = CornerPipeline::new(level, mask, u, fetch);
     for (i, (oi, ji)) in o.chunks_exact_mut(f_n).zip(jac.chunks_exact_mut(f_n * 3)).enumerate() {
-        let (rows, a, s) = corner_rows(level, mask, [u[3 * i], u[3 * i + 1], u[3 * i + 2]]);
+        let (rows, a, s) = pipe.take(i, fetch);
         // The corner weights, the same products in the same order as `corners`.
         let w: [f32; 8] = std::array::from_fn(|k| a[0][k & 1] * a[1][(k >> 1) & 1] * a[2][k >> 2]);
         // Edge e along x joins corners 2e and 2e + 1 (y = e & 1, z = e >> 1); along y corners
