@@ -1,4 +1,4 @@
-//! The field's MLP layer op and the SSIM window-blur op on wgpu against the CPU (when a wgpu
+//! The field's MLP layer op, the SSIM window-blur op and the SSIM op on wgpu against the CPU (when a wgpu
 //! adapter exists; `CTADSA_REQUIRE_WGPU=1` makes a missing adapter a failure).
 #![cfg(feature = "wgpu")]
 #![allow(deprecated)] // burn-ndarray is deprecated in burn 0.22; it is the CPU backend the tests use.
@@ -7,6 +7,7 @@ use burn::tensor::{Device, Tensor, TensorData};
 use ctadsa_core::method::blur_op::window_blur;
 use ctadsa_core::method::model::host_vec;
 use ctadsa_core::method::model::linear_op::fused_linear;
+use ctadsa_core::method::ssim_op::ssim_mean;
 
 fn values(len: usize, seed: u64) -> Vec<f32> {
     let mut s = seed;
@@ -83,4 +84,28 @@ fn fused_linear_on_wgpu_matches_cpu() {
     for (k, name) in ["output", "x", "weight", "bias"].iter().enumerate() {
         assert_close(name, &a[k], &b[k]);
     }
+}
+
+#[test]
+fn ssim_on_wgpu_matches_cpu() {
+    let Some(gpu) = wgpu_or_skip("SSIM") else { return };
+    let [v, h, w] = [2, 23, 29];
+    let unit = |d: Vec<f32>| d.into_iter().map(|a| 0.5 * (a + 1.0)).collect::<Vec<f32>>();
+    let (x, y) = (unit(values(v * h * w, 7)), unit(values(v * h * w, 8)));
+    let run = |device: Device| {
+        let device = device.autodiff();
+        let x = Tensor::<3>::from_data(TensorData::new(x.clone(), [v, h, w]), &device).require_grad();
+        let y = Tensor::<3>::from_data(TensorData::new(y.clone(), [v, h, w]), &device);
+        let mu_y = window_blur(y.clone());
+        let syy = window_blur(y.clone() * y.clone()) - mu_y.clone() * mu_y.clone();
+        let out = ssim_mean(x.clone(), y, mu_y, syy);
+        let grads = out.clone().backward();
+        (host_vec(out), host_vec(x.grad(&grads).unwrap()))
+    };
+    let (a, b) = (run(Device::ndarray()), run(gpu));
+    assert_close("SSIM value", &a.0, &b.0);
+    // The gradient's entries are O(1 / pixels): compare relative to their largest.
+    let scale = a.1.iter().fold(0.0f32, |m, q| m.max(q.abs()));
+    let worst = a.1.iter().zip(&b.1).map(|(p, q)| (p - q).abs()).fold(0.0f32, f32::max);
+    assert!(scale > 0.0 && worst <= 1e-3 * scale, "SSIM gradient: wgpu differs by {worst} (scale {scale})");
 }

@@ -71,8 +71,15 @@ impl SsimTarget {
     }
 }
 
-/// [`ssim`] against a target whose statistics are already known (3 blurs per call instead of 5).
+/// [`ssim`] against a target whose statistics are already known (3 blurs per call instead of 5):
+/// one backend op ([`crate::method::ssim_op`]).
 pub fn ssim_against(pred: Tensor<3>, target: &SsimTarget) -> Tensor<1> {
+    crate::method::ssim_op::ssim_mean(pred, target.y.clone(), target.mu_y.clone(), target.syy.clone())
+}
+
+/// [`ssim_against`] written with plain tensor operations (autodiff through them): the op's test
+/// oracle.
+pub fn ssim_against_composed(pred: Tensor<3>, target: &SsimTarget) -> Tensor<1> {
     let (x, y) = (pred, target.y.clone());
     let mu_x = gaussian_blur(x.clone());
     let mu_y = target.mu_y.clone();

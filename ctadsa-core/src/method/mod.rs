@@ -10,5 +10,6 @@ pub mod model;
 pub mod ndarray_host;
 pub mod optim;
 pub mod pose;
+pub mod ssim_op;
 pub mod train;
 pub mod working_box;
