@@ -2,8 +2,7 @@
 //! with a hand-written backward: three window blurs forward, three backward, and per-pixel
 //! loops between them. Written with tensor operations (`loss::ssim_against_composed`, kept as
 //! the test oracle) it made about 25 autodiff nodes per call, each a pass over the image and a
-//! fresh buffer — about a third of the quick configuration's step. Other backends compose their
-//! own primitive ops.
+//! fresh buffer. Other backends compose their own primitive ops.
 
 #![allow(deprecated)] // burn-ndarray is deprecated in burn 0.22 in favour of burn-flex.
 
