@@ -65,6 +65,14 @@ fn corner_rows(lv: &Level, mask: i64, u: [f32; 3]) -> ([usize; 8], [[f32; 2]; 3]
     (rows, a, std::array::from_fn(|d| lv.res * inside[d]))
 }
 
+/// The 8 trilinear corner weights (corner `k` = `x + 2y + 4z`) from the per-axis factors of
+/// [`corner_rows`]: `a[0][x] · a[1][y] · a[2][z]`, in that order (every path multiplies the
+/// same way, so their results agree bit for bit).
+#[inline(always)]
+fn corner_weights(a: &[[f32; 2]; 3]) -> [f32; 8] {
+    std::array::from_fn(|k| a[0][k & 1] * a[1][(k >> 1) & 1] * a[2][k >> 2])
+}
+
 /// How many points ahead the level loops compute corner rows and prefetch them: a point's 8·F
 /// table reads are random, and waiting for each in turn would leave the core idle.
 const AHEAD: usize = 8;
@@ -129,18 +137,11 @@ impl<'a> CornerPipeline<'a> {
 fn corners(lv: &Level, mask: i64, u: [f32; 3]) -> ([usize; 8], [f32; 8], [[f32; 3]; 8]) {
     let (rows, a, s) = corner_rows(lv, mask, u);
     const SIGN: [f32; 2] = [-1.0, 1.0];
-    let mut w = [0.0f32; 8];
-    let mut dw = [[0.0f32; 3]; 8];
-    for k in 0..8 {
+    let dw = std::array::from_fn(|k| {
         let (x, y, z) = (k & 1, (k >> 1) & 1, (k >> 2) & 1);
-        w[k] = a[0][x] * a[1][y] * a[2][z];
-        dw[k] = [
-            SIGN[x] * a[1][y] * a[2][z] * s[0],
-            a[0][x] * SIGN[y] * a[2][z] * s[1],
-            a[0][x] * a[1][y] * SIGN[z] * s[2],
-        ];
-    }
-    (rows, w, dw)
+        [SIGN[x] * a[1][y] * a[2][z] * s[0], a[0][x] * SIGN[y] * a[2][z] * s[1], a[0][x] * a[1][y] * SIGN[z] * s[2]]
+    });
+    (rows, corner_weights(&a), dw)
 }
 
 /// The table gradient `[F · R]` (rows `stride` per feature) split per level into that level's
@@ -227,8 +228,7 @@ fn encode_level(level: &Level, mask: i64, u: &[f32], tables: &[f32], stride: usi
     let mut pipe = CornerPipeline::new(level, mask, u, fetch);
     for (i, oi) in o.chunks_exact_mut(f_n).enumerate() {
         let (rows, a, _) = pipe.take(i, fetch);
-        // The corner weights, the same products in the same order as `corners`.
-        let w: [f32; 8] = std::array::from_fn(|k| a[0][k & 1] * a[1][(k >> 1) & 1] * a[2][k >> 2]);
+        let w = corner_weights(&a);
         for (f, v) in oi.iter_mut().enumerate() {
             let t = &tables[f * stride..(f + 1) * stride];
             *v = (0..8).map(|k| w[k] * t[rows[k]]).sum();
@@ -359,8 +359,7 @@ fn encode_level_jacobian(
     let mut pipe = CornerPipeline::new(level, mask, u, fetch);
     for (i, (oi, ji)) in o.chunks_exact_mut(f_n).zip(jac.chunks_exact_mut(f_n * 3)).enumerate() {
         let (rows, a, s) = pipe.take(i, fetch);
-        // The corner weights, the same products in the same order as `corners`.
-        let w: [f32; 8] = std::array::from_fn(|k| a[0][k & 1] * a[1][(k >> 1) & 1] * a[2][k >> 2]);
+        let w = corner_weights(&a);
         // Edge e along x joins corners 2e and 2e + 1 (y = e & 1, z = e >> 1); along y corners
         // p + 4q and p + 4q + 2 (x = p, z = q); along z corners p + 2q and p + 2q + 4 (x = p,
         // y = q), with p = e & 1, q = e >> 1. Each edge's weight is the other two axes' factors.
