@@ -67,8 +67,8 @@ enum BenchWhat {
     },
     /// One table of the training step for the configurations users run: the quick config on the
     /// demo case, and the paper's schedule (one 512² view per step, ~60k Gaussians) with the
-    /// hash table at 2^19 and at the reference's 2^20; each row in its own process (so peak
-    /// memory is per row).
+    /// hash table at 2^19 and at the reference's 2^20, and at 100k Gaussians (the size a paper
+    /// run grows to); each row in its own process (so peak memory is per row).
     TrainSuite {
         /// Timed steps per row (after 2 warm-up steps).
         #[arg(long, default_value_t = 5)]
