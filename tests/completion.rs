@@ -362,10 +362,18 @@ fn densify_prunes_by_the_last_steps_densities_or_a_fresh_forward() {
     let plan = t.densify().unwrap();
     assert_eq!(plan.pruned, below(&before, thr), "pruned by the last step's densities");
     let now = t.host_gaussians().3;
-    let thr = now.iter().copied().fold(f32::INFINITY, f32::min) * 1.5;
+    let mut sorted = now.clone();
+    sorted.sort_by(f32::total_cmp);
+    let thr = sorted[sorted.len() / 2];
     t.cfg.densify.min_density = thr as f64;
     let plan = t.densify().unwrap();
     assert_eq!(plan.pruned, below(&now, thr), "pruned by a fresh forward");
+    // A threshold above every density would empty the model: an error, the model unchanged.
+    let n = t.model().len();
+    t.cfg.densify.min_density = 1e9;
+    let err = t.densify().expect_err("pruning every Gaussian is an error").to_string();
+    assert!(err.contains("prune all") && err.contains("min_density"), "{err}");
+    assert_eq!(t.model().len(), n);
 }
 
 /// Copies a folder tree.

@@ -75,12 +75,7 @@ pub fn train_suite(steps: usize, threads: usize) -> Result<()> {
         ("paper schedule, the reference's table 2^20", &wide, Some(&paper), vec!["field.encoding.log2_table=20"]),
         // A paper run densifies without a cap: a BraVa tree grows to ≈ 100k Gaussians by
         // iteration 9,000 and keeps them to the end.
-        (
-            "paper schedule, grown to 100k Gaussians, 2^19",
-            &wide,
-            Some(&paper),
-            vec!["init.n1=50000", "init.n2=50000"],
-        ),
+        ("paper schedule, grown to 100k Gaussians, 2^19", &wide, Some(&paper), vec!["init.n1=50000", "init.n2=50000"]),
     ];
     let columns = ["field", "render", "losses", "backward", "optimiser", "total per step", "densify", "initialisation"];
     let mut table = format!(

@@ -561,6 +561,18 @@ impl Trainer {
             self.iteration,
             self.cfg.run.seed,
         );
+        if plan.keep.is_empty() && plan.added.is_empty() {
+            // An empty model renders nothing and cannot grow back: say so instead of finishing
+            // the run with an empty mesh.
+            return Err(CoreError::invalid(format!(
+                "iteration {}: densification would prune all {} Gaussians (every density below \
+                 densify.min_density = {:e}): the field's output collapsed to zero (field.output = \
+                 \"relu\" can die this way; \"softplus\" cannot); the model is left as it was",
+                self.iteration,
+                densities.len(),
+                self.cfg.densify.min_density
+            )));
+        }
         // Clones share the tensors; on an error the current model and optimizer stay as they are.
         let (model, optim) = densify::apply(model.clone(), self.optim.clone(), &plan, &self.device)?;
         self.stats = DensifyStats::new(model.len());
