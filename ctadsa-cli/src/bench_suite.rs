@@ -70,7 +70,7 @@ pub fn train_suite(steps: usize, threads: usize) -> Result<()> {
     let paper = dir.join("paper.toml");
     std::fs::write(&paper, PAPER_TOML).with_context(|| format!("cannot write {}", paper.display()))?;
     let rows: [(&str, &Path, Option<&Path>, Vec<&str>); 4] = [
-        ("quick (demo case: 3 views of 128², all per step, 7k Gaussians, 2^14)", &demo, None, vec![]),
+        ("quick (demo case: 3 views of 128², all per step, 33k Gaussians, 2^14)", &demo, None, vec![]),
         ("paper schedule: 1 view of 512² per step, 60k Gaussians, 2^19", &wide, Some(&paper), vec![]),
         ("paper schedule, the reference's table 2^20", &wide, Some(&paper), vec!["field.encoding.log2_table=20"]),
         // A paper run densifies without a cap: a BraVa tree grows to ≈ 100k Gaussians by
