@@ -280,7 +280,9 @@ impl NearCells {
             }
         }
         let extent = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max);
-        let cell_mm = radius_mm.max(extent / (Self::MAX_DIM - 4) as f64).max(1e-6);
+        // A hair wider than the radius, so that rounding of the cell index cannot put a point
+        // at exactly the radius two cells away.
+        let cell_mm = (radius_mm * 1.001).max(extent / (Self::MAX_DIM - 4) as f64).max(1e-6);
         // One empty cell of margin on each side, so that every neighbour of a point's cell exists.
         let origin = lo.map(|l| l - cell_mm);
         let dims = [0, 1, 2].map(|a| (((hi[a] - lo[a]) / cell_mm).floor() as usize + 3).min(Self::MAX_DIM));
