@@ -97,9 +97,9 @@ pub struct InitConfig {
     /// does, provided at least half of the views (rounded up) show residual, and (with
     /// `occluded_connected`) the voxel connects to a fully supported one or to the prior. Off:
     /// every view must show residual (the vessels behind the prior in any view are never
-    /// seeded). Applies to runs with at least `occluded_min_views` views. Off by default: with 3
-    /// views it helps some cases and hurts others, the same ones with two seeds (BraVa: CD_ROI
-    /// −0.18 mm on average, 5 trees better, 3 worse; worse on TopCoW and the demo; docs/RESULTS.md).
+    /// seeded). Applies to runs with at least `occluded_min_views` views. Off by default: with
+    /// the quick configuration's 30,000 prior Gaussians it is worse on every BraVa tree with 3
+    /// views (CD_ROI 1.91 → 2.38 mm, HD95_ROI 5.71 → 6.79; docs/RESULTS.md).
     pub occluded_views_support: bool,
     /// With `occluded_views_support`: a voxel that a view passed only because the prior hides
     /// it is kept only when its 26-connected group of supported voxels holds a voxel that every
