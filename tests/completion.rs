@@ -417,12 +417,17 @@ fn no_ground_truth_steers_the_method() {
         }
         if name == "with-gt" {
             // The diagnosis's "found" class is the recall criterion, so the two agree.
-            let b = ctadsa_core::eval::diagnose::diagnose_run(c, &dir).unwrap();
+            let d = ctadsa_core::eval::diagnose::diagnose_run(c, &dir).unwrap();
+            let b = d.missing;
             let recall = summary.coverage.unwrap().missing_recall.unwrap();
             let total = b.found + b.not_in_masks + b.behind_prior + b.not_seeded + b.misplaced + b.faded;
             assert!((total - 1.0).abs() < 1e-9, "classes sum to {total}");
             assert!((b.found - recall).abs() < 1e-9, "found {} vs recall {recall}", b.found);
             eprintln!("tiny case after 30 iterations: {b:?}");
+            // The new surface's bands cover all of it.
+            let ns = d.new_surface.expect("the case has a prior");
+            let banded: f64 = ns.bands.iter().map(|band| band.area_mm2).sum();
+            assert!((banded - ns.area_mm2).abs() <= 1e-9 * ns.area_mm2.max(1.0), "{ns:?}");
         }
         outputs.push((summary, std::fs::read(dir.join("mesh.obj")).unwrap(), trainer.history.clone()));
     }

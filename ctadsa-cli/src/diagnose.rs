@@ -22,7 +22,8 @@ pub struct DiagnoseArgs {
 
 pub fn run(args: DiagnoseArgs) -> Result<()> {
     let case = Case::load(&args.case)?;
-    let b = diagnose_run(&case, &args.run)?;
+    let d = diagnose_run(&case, &args.run)?;
+    let b = &d.missing;
     println!("missing centreline: {:.0} mm", b.length_mm);
     println!("| class | share of the missing length |\n|---|---:|");
     for (name, v) in [
@@ -35,8 +36,25 @@ pub fn run(args: DiagnoseArgs) -> Result<()> {
     ] {
         println!("| {name} | {:.1} % |", 100.0 * v);
     }
+    if let Some(ns) = &d.new_surface {
+        let missing = ns.missing_area_mm2.map_or(String::new(), |a| format!(" (the true missing vessels: {a:.0} mm²)"));
+        println!("\nnew surface (the completed surface off the prior): {:.0} mm²{missing}", ns.area_mm2);
+        println!(
+            "| distance to the prior | share of the new area | mean distance to the truth | farther than 2 mm from it |"
+        );
+        println!("|---|---:|---:|---:|");
+        for band in &ns.bands {
+            let range = band.to_mm.map_or(format!("≥ {} mm", band.from_mm), |t| format!("{}–{t} mm", band.from_mm));
+            println!(
+                "| {range} | {:.1} % | {:.2} mm | {:.1} % |",
+                100.0 * band.share,
+                band.mean_truth_mm,
+                100.0 * band.false_share
+            );
+        }
+    }
     if let Some(path) = &args.json {
-        std::fs::write(path, serde_json::to_string_pretty(&b)?)
+        std::fs::write(path, serde_json::to_string_pretty(&d)?)
             .with_context(|| format!("cannot write {}", path.display()))?;
     }
     Ok(())

@@ -12,7 +12,8 @@
 //!    the views' signal was explained at a wrong depth;
 //! 6. **faded** — seeded, but the density there stayed below the iso-level.
 //!
-//! Each class is a fraction of the missing centreline length.
+//! Each class is a fraction of the missing centreline length. Beside it, where the run's new
+//! surface lies ([`crate::eval::new_surface`]).
 
 use std::path::Path;
 
@@ -32,6 +33,7 @@ use crate::data::volume::Volume;
 use crate::data::volume::nifti_io::read_nifti;
 use crate::error::{CoreError, Result, read_file};
 use crate::eval::metrics::nearest_distances;
+use crate::eval::new_surface::{NewSurface, new_surface};
 use crate::eval::score::CaseTruth;
 use crate::eval::surface_metrics::{RECALL_SLACK_MM, centreline_points};
 use crate::method::init::initialise;
@@ -54,6 +56,15 @@ pub struct LossBreakdown {
     pub faded: f64,
     /// Missing centreline length (mm).
     pub length_mm: f64,
+}
+
+/// The diagnosis of a run: where the missing vessels were lost and where its new surface lies.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Diagnosis {
+    #[serde(flatten)]
+    pub missing: LossBreakdown,
+    /// `None` for a case without a prior.
+    pub new_surface: Option<NewSurface>,
 }
 
 /// What the diagnosis looks at.
@@ -151,9 +162,10 @@ pub fn diagnose(missing: &[Segment], inp: &DiagnoseInputs) -> LossBreakdown {
     out
 }
 
-/// [`diagnose`] of a finished run (`run_dir` with `config.toml`, `density.nii.gz`,
-/// `summary.json` and the completed mesh) on its synthetic case, which must have a tree.
-pub fn diagnose_run(case: &Case, run_dir: &Path) -> Result<LossBreakdown> {
+/// [`diagnose`] and [`new_surface`] of a finished run (`run_dir` with `config.toml`,
+/// `density.nii.gz`, `summary.json` and the completed mesh) on its synthetic case, which must
+/// have a tree.
+pub fn diagnose_run(case: &Case, run_dir: &Path) -> Result<Diagnosis> {
     let cfg = Config::load(Some(&run_dir.join("config.toml")), &[])?;
     let truth = CaseTruth::load(case)?.ok_or_else(|| CoreError::invalid("the case has no ground truth"))?;
     let missing = truth
@@ -187,6 +199,9 @@ pub fn diagnose_run(case: &Case, run_dir: &Path) -> Result<LossBreakdown> {
         .as_f64()
         .ok_or_else(|| CoreError::format(&summary_path, "no `mc_level` in the run summary"))?;
     let completed = read_mesh(&run_dir.join(format!("mesh.{}", cfg.output.mesh_format)))?;
+    let truth_index = SurfaceIndex::new(&truth.complete);
+    let missing_area = truth.split.as_ref().map(|(_, m)| m.area_mm2());
+    let new = prior.as_ref().map(|p| new_surface(&completed, &SurfaceIndex::new(p), &truth_index, missing_area));
     let inputs = DiagnoseInputs {
         views: views.views(),
         images: &images,
@@ -196,7 +211,7 @@ pub fn diagnose_run(case: &Case, run_dir: &Path) -> Result<LossBreakdown> {
         density: &density,
         level,
         completed: &SurfaceIndex::new(&completed),
-        truth: &SurfaceIndex::new(&truth.complete),
+        truth: &truth_index,
     };
-    Ok(diagnose(missing, &inputs))
+    Ok(Diagnosis { missing: diagnose(missing, &inputs), new_surface: new })
 }

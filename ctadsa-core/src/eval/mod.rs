@@ -5,5 +5,6 @@ pub mod centreline_metrics;
 pub mod diagnose;
 pub mod icp;
 pub mod metrics;
+pub mod new_surface;
 pub mod score;
 pub mod surface_metrics;
