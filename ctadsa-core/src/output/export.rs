@@ -281,8 +281,7 @@ fn extract_completed_surface(
     let out = &trainer.cfg.output;
     let solid = prior.filter(|_| out.keep_prior).map(|p| prior_solid(p, volume));
     let level_scores = if out.level_from_views {
-        let threshold =
-            if out.level_mask_threshold > 0.0 { out.level_mask_threshold } else { trainer.cfg.init.mask_threshold };
+        let threshold = out.level_mask_threshold_for(trainer.views.views().len(), trainer.cfg.init.mask_threshold);
         score_levels(volume, trainer.views.views(), &trainer.images, threshold, solid.as_ref())
     } else {
         Vec::new()
