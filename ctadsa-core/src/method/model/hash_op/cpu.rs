@@ -7,16 +7,16 @@ use crate::method::model::hash_grid::{HASH_P1, HASH_P2, HashGridConfig};
 
 /// Per-level constants.
 #[derive(Debug, Clone, Copy)]
-struct Level {
-    res: f32,
-    r1: i64,
-    dense: bool,
+pub(super) struct Level {
+    pub(super) res: f32,
+    pub(super) r1: i64,
+    pub(super) dense: bool,
     /// First row and row count of the level in the table.
-    base: usize,
-    rows: usize,
+    pub(super) base: usize,
+    pub(super) rows: usize,
 }
 
-fn levels(c: &HashGridConfig) -> Vec<Level> {
+pub(super) fn levels(c: &HashGridConfig) -> Vec<Level> {
     (0..c.levels)
         .map(|l| Level {
             res: c.resolution(l) as f32,
@@ -71,6 +71,17 @@ fn corner_rows(lv: &Level, mask: i64, u: [f32; 3]) -> ([usize; 8], [[f32; 2]; 3]
 #[inline(always)]
 fn corner_weights(a: &[[f32; 2]; 3]) -> [f32; 8] {
     std::array::from_fn(|k| a[0][k & 1] * a[1][(k >> 1) & 1] * a[2][k >> 2])
+}
+
+/// `Σ_k w[k]·v[k]`, summed in corner order from the first product (the AVX2 kernels sum the
+/// same way).
+#[inline(always)]
+fn dot8(w: &[f32; 8], v: &[f32; 8]) -> f32 {
+    let mut sum = w[0] * v[0];
+    for k in 1..8 {
+        sum += w[k] * v[k];
+    }
+    sum
 }
 
 /// How many points ahead the level loops compute corner rows and prefetch them: a point's 8·F
@@ -219,9 +230,33 @@ pub fn encode_backward_into(
     grad_u
 }
 
-/// One level of [`encode`]: `[N·F]` (compiled for AVX2 + FMA where the CPU has them).
-#[multiversion::multiversion(targets("x86_64+avx2+fma+sse4.1", "x86_64+sse4.1"))]
+/// One level of [`encode`]: `[N·F]` (the AVX2 kernel where the CPU has AVX2 and FMA).
 fn encode_level(level: &Level, mask: i64, u: &[f32], tables: &[f32], stride: usize, f_n: usize) -> Vec<f32> {
+    #[cfg(target_arch = "x86_64")]
+    if has_avx2() {
+        // SAFETY: the CPU has AVX2 and FMA.
+        return unsafe { super::avx2::encode_level(level, mask, u, tables, stride, f_n) };
+    }
+    encode_level_scalar(level, mask, u, tables, stride, f_n)
+}
+
+/// Whether the CPU runs the AVX2 kernels (AVX2 and FMA).
+#[cfg(target_arch = "x86_64")]
+fn has_avx2() -> bool {
+    is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma")
+}
+
+/// [`encode_level`], one point at a time (compiled for SSE 4.1 where the CPU has it); the
+/// AVX2 kernel's oracle and tail.
+#[multiversion::multiversion(targets("x86_64+sse4.1"))]
+pub(super) fn encode_level_scalar(
+    level: &Level,
+    mask: i64,
+    u: &[f32],
+    tables: &[f32],
+    stride: usize,
+    f_n: usize,
+) -> Vec<f32> {
     let n = u.len() / 3;
     let mut o = vec![0.0f32; n * f_n];
     let fetch = |row: usize| (0..f_n).for_each(|f| prefetch(tables, f * stride + row));
@@ -231,7 +266,7 @@ fn encode_level(level: &Level, mask: i64, u: &[f32], tables: &[f32], stride: usi
         let w = corner_weights(&a);
         for (f, v) in oi.iter_mut().enumerate() {
             let t = &tables[f * stride..(f + 1) * stride];
-            *v = (0..8).map(|k| w[k] * t[rows[k]]).sum();
+            *v = dot8(&w, &std::array::from_fn(|k| t[rows[k]]));
         }
     }
     o
@@ -343,8 +378,26 @@ pub fn encode_backward_from_jacobian_into(
 /// feature into `jac` (`[N·F·3]`). Per axis the derivative is the corner differences along that
 /// axis weighted by the other two axes' factors (the sum of the corner weights' derivatives
 /// times the corners, grouped by edge).
-#[multiversion::multiversion(targets("x86_64+avx2+fma+sse4.1", "x86_64+sse4.1"))]
 fn encode_level_jacobian(
+    level: &Level,
+    mask: i64,
+    u: &[f32],
+    tables: &[f32],
+    stride: usize,
+    f_n: usize,
+    jac: &mut [f32],
+) -> Vec<f32> {
+    #[cfg(target_arch = "x86_64")]
+    if has_avx2() {
+        // SAFETY: the CPU has AVX2 and FMA.
+        return unsafe { super::avx2::encode_level_jacobian(level, mask, u, tables, stride, f_n, jac) };
+    }
+    encode_level_jacobian_scalar(level, mask, u, tables, stride, f_n, jac)
+}
+
+/// [`encode_level_jacobian`], one point at a time; the AVX2 kernel's oracle and tail.
+#[multiversion::multiversion(targets("x86_64+sse4.1"))]
+pub(super) fn encode_level_jacobian_scalar(
     level: &Level,
     mask: i64,
     u: &[f32],
@@ -373,7 +426,7 @@ fn encode_level_jacobian(
             *v = std::array::from_fn(|k| t[rows[k]]);
         }
         for (f, v) in corner_values.iter().enumerate().take(f_n) {
-            oi[f] = (0..8).map(|k| w[k] * v[k]).sum();
+            oi[f] = dot8(&w, v);
             let (mut jx, mut jy, mut jz) = (0.0f32, 0.0f32, 0.0f32);
             for e in 0..4 {
                 let (p, q) = (e & 1, e >> 1);
@@ -389,8 +442,26 @@ fn encode_level_jacobian(
 
 /// One level's table-gradient scatter of [`encode_backward_from_jacobian_into`] (no table
 /// reads): the same additions, in the same order, as [`backward_level`]'s.
-#[multiversion::multiversion(targets("x86_64+avx2+fma+sse4.1", "x86_64+sse4.1"))]
 fn scatter_level(level: &Level, l: usize, mask: i64, u: &[f32], grad: &[f32], l_n: usize, features: &mut [&mut [f32]]) {
+    #[cfg(target_arch = "x86_64")]
+    if has_avx2() {
+        // SAFETY: the CPU has AVX2 and FMA.
+        return unsafe { super::avx2::scatter_level(level, l, mask, u, grad, l_n, features) };
+    }
+    scatter_level_scalar(level, l, mask, u, grad, l_n, features)
+}
+
+/// [`scatter_level`], one point at a time; the AVX2 kernel's oracle and tail.
+#[multiversion::multiversion(targets("x86_64+sse4.1"))]
+pub(super) fn scatter_level_scalar(
+    level: &Level,
+    l: usize,
+    mask: i64,
+    u: &[f32],
+    grad: &[f32],
+    l_n: usize,
+    features: &mut [&mut [f32]],
+) {
     let n = u.len() / 3;
     let f_n = features.len();
     for i in 0..n {

@@ -11,6 +11,7 @@
 
 #![allow(deprecated)] // burn-ndarray is deprecated in burn 0.22 in favour of burn-flex.
 
+mod avx2;
 pub mod cpu;
 #[cfg(feature = "wgpu")]
 pub mod gpu;
