@@ -38,12 +38,16 @@ fn shipped_configs_load_and_matrices_point_at_them() {
     let prior_only = Config::load(Some(&root.join("baselines/prior-only.toml")), &[]).unwrap();
     assert_eq!(prior_only.init.n2, 0);
     assert_eq!(prior_only.run, quick.run, "a baseline changes only what it says");
-    // The CPU configuration is the quick one with a larger budget, nothing else.
+    // The CPU configuration is the quick one with a larger budget and a lower 3-view iso-level
+    // (more recall), nothing else.
     let mut cpu = Config::load(Some(&root.join("cpu.toml")), &[]).unwrap();
     assert!(cpu.run.iterations > quick.run.iterations && cpu.densify.max_gaussians > quick.densify.max_gaussians);
     cpu.run.iterations = quick.run.iterations;
     cpu.densify.until = quick.densify.until;
     cpu.densify.every = quick.densify.every;
     cpu.densify.max_gaussians = quick.densify.max_gaussians;
-    assert_eq!(format!("{cpu:?}"), format!("{quick:?}"), "cpu.toml changes only the budget");
+    assert!(cpu.output.level_mask_threshold < cpu.init.mask_threshold);
+    assert_eq!(cpu.output.level_mask_threshold_two_views, quick.output.level_mask_threshold_two_views);
+    cpu.output.level_mask_threshold = quick.output.level_mask_threshold;
+    assert_eq!(format!("{cpu:?}"), format!("{quick:?}"), "cpu.toml changes only the budget and the 3-view level");
 }
