@@ -376,6 +376,45 @@ fn densify_prunes_by_the_last_steps_densities_or_a_fresh_forward() {
     assert_eq!(t.model().len(), n);
 }
 
+/// The lines a run tells its user.
+struct Notes(Vec<String>);
+
+impl Monitor for Notes {
+    fn note(&mut self, line: &str) {
+        self.0.push(line.to_string());
+    }
+}
+
+#[test]
+fn a_collapsed_field_is_reported() {
+    // A coupled L2 penalty far above the image gradients: Adam moves every field weight towards
+    // zero by about the learning rate per step, and the field ends with one density everywhere.
+    let iterations = 80;
+    let mut cfg = tiny_config(iterations);
+    cfg.optim.field_weight_decay = 10.0;
+    cfg.optim.lr_field = [0.05, 0.05];
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("collapsed-{}", std::process::id()));
+    let mut notes = Notes(Vec::new());
+    let outcome = run_completion(tiny_case(), cfg, Device::ndarray().autodiff(), &dir, Start::Overwrite, &mut notes)
+        .expect("run");
+    let Outcome::Finished(summary) = outcome else { panic!("the run was not asked to stop") };
+    let spread = summary.field_densities.expect("densities");
+    assert!(summary.field_constant, "{spread:?}");
+    assert!(
+        notes.0.iter().any(|n| n.contains("collapsed") && n.contains("optim.field_weight_decay")),
+        "the run says so: {:?}",
+        notes.0
+    );
+    // Without the penalty the same run spreads the densities, and says nothing.
+    let mut t = Trainer::new(tiny_case(), tiny_config(iterations), Device::ndarray().autodiff()).unwrap();
+    assert!(t.density_spread().unwrap().is_constant(), "the field starts constant (its table starts near zero)");
+    for _ in 0..iterations {
+        t.step().unwrap();
+    }
+    let learnt = t.density_spread().unwrap();
+    assert!(!learnt.is_constant() && learnt.p99 > 2.0 * learnt.p1, "{learnt:?}");
+}
+
 /// Copies a folder tree.
 fn copy_dir(from: &std::path::Path, to: &std::path::Path) {
     std::fs::create_dir_all(to).unwrap();

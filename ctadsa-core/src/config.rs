@@ -170,7 +170,10 @@ pub struct OptimConfig {
     pub lr_field: LrRange,
     /// Adam ε (reference 1e-15).
     pub epsilon: f64,
-    /// Adam weight decay on the field (reference 5e-5).
+    /// Coupled L2 weight decay on the field (Adam's `weight_decay`; the reference's is 5e-5).
+    /// 0 by default: with Adam it collapses the field to one density for every Gaussian once the
+    /// image gradients are small (the paper configuration's field on BG0002 by iteration 5,000;
+    /// `crate::method::field_health`, docs/RESULTS.md).
     pub field_weight_decay: f64,
     /// Which Adam: `fused` (one pass per parameter, [`crate::method::optim::FusedAdam`]) or `burn`
     /// (burn's `Adam`, the reference); the same update rule and checkpoint format.
@@ -194,7 +197,7 @@ impl Default for OptimConfig {
             lr_rotations: [1e-3, 1e-4],
             lr_field: [1e-3, 1e-4],
             epsilon: 1e-15,
-            field_weight_decay: 5e-5,
+            field_weight_decay: 0.0,
             adam: AdamImpl::Fused,
         }
     }

@@ -4,6 +4,7 @@
 
 pub mod blur_op;
 pub mod densify;
+pub mod field_health;
 pub mod init;
 pub mod loss;
 pub mod model;

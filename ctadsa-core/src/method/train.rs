@@ -26,6 +26,7 @@ use crate::data::projector::correction::PoseCorrection;
 use crate::data::volume::BoxMm;
 use crate::error::{CoreError, Result, read_file, to_json, write_file};
 use crate::method::densify::{self, DensifyStats};
+use crate::method::field_health::DensitySpread;
 use crate::method::init::initialise;
 use crate::method::loss::{LossTargets, PriorAnchor};
 use crate::method::model::{GaussianInit, GaussianModel, ScaleBounds, host_vec};
@@ -744,6 +745,11 @@ impl Trainer {
             .collect();
         cks.sort();
         cks.into_iter().rev().map(|(_, p)| p).collect()
+    }
+
+    /// Percentiles of the field's densities at the Gaussians' centres (one field forward).
+    pub fn density_spread(&self) -> Option<DensitySpread> {
+        DensitySpread::of(&host_vec(self.model().valid().densities()))
     }
 
     /// Host copy of the Gaussians: `(means, scales, rotations, densities)` row-major.

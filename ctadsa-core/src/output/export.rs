@@ -24,6 +24,7 @@ use crate::error::{Result, to_json, write_file};
 use crate::eval::metrics::RegionScores;
 use crate::eval::score::{CaseTruth, EvalOptions};
 use crate::eval::surface_metrics::Coverage;
+use crate::method::field_health::DensitySpread;
 use crate::method::model::host_vec;
 use crate::method::train::{StepLog, Trainer};
 use crate::output::centreline::{CentrelineSummary, SolidPart, completed_centreline, write_centreline};
@@ -55,6 +56,10 @@ pub struct RunSummary {
     /// to the prior (`output.connected_level_fraction`).
     pub islands_dropped: usize,
     pub final_loss: f64,
+    /// The field's densities at the Gaussians' centres; a constant field has collapsed
+    /// ([`crate::method::field_health`]).
+    pub field_densities: Option<DensitySpread>,
+    pub field_constant: bool,
     /// Scores of the completed surface (exact distances, `docs/METRICS.md`) when the case has
     /// ground truth.
     pub metrics: Option<RegionScores>,
@@ -205,6 +210,7 @@ pub fn write_outputs(dir: &Path, case: &Case, trainer: &Trainer) -> Result<RunSu
         _ => None,
     };
     let pose_errors = write_poses(dir, case, trainer, prior.as_ref())?;
+    let spread = trainer.density_spread();
     let summary = RunSummary {
         case_dir: case.dir.display().to_string(),
         iterations: trainer.iteration,
@@ -217,6 +223,8 @@ pub fn write_outputs(dir: &Path, case: &Case, trainer: &Trainer) -> Result<RunSu
         mesh_triangles: mesh.faces.len(),
         islands_dropped: surface.islands_dropped,
         final_loss: trainer.history.last().map_or(f64::NAN, |s| s.loss),
+        field_densities: spread,
+        field_constant: spread.is_some_and(|s| s.is_constant()),
         metrics: scored.as_ref().map(|r| r.scores),
         coverage: scored.as_ref().map(|r| r.coverage),
         paper_metrics: scored.as_ref().map(|r| r.paper),

@@ -130,12 +130,14 @@ pub fn run_completion(
     let ck_dir = out.join("checkpoints");
     let mut trainer = start_trainer(case, &cfg, device, out, start, monitor)?;
     monitor.started(&trainer, &cfg);
+    let mut warned = false;
     while trainer.iteration < cfg.run.iterations {
         let log = trainer.step()?;
         monitor.stepped(&trainer, &log);
         let every = cfg.run.checkpoint_every;
         if every > 0 && trainer.iteration % every == 0 && trainer.iteration < cfg.run.iterations {
             trainer.save_checkpoint(&ck_dir)?;
+            warn_if_constant(&trainer, &mut warned, monitor);
         }
         if monitor.should_stop() {
             let checkpoint = trainer.save_checkpoint(&ck_dir)?;
@@ -143,7 +145,25 @@ pub fn run_completion(
         }
     }
     trainer.save_checkpoint(&ck_dir)?;
+    warn_if_constant(&trainer, &mut warned, monitor);
     let summary = write_outputs(out, case, &trainer)?;
     write_report(out)?;
     Ok(Outcome::Finished(Box::new(summary)))
+}
+
+/// Tells the user, once per run, when the trained field gives every Gaussian the same density.
+fn warn_if_constant(trainer: &Trainer, warned: &mut bool, monitor: &mut dyn Monitor) {
+    if *warned || trainer.iteration == 0 {
+        return;
+    }
+    if let Some(s) = trainer.density_spread().filter(|s| s.is_constant()) {
+        *warned = true;
+        monitor.note(&format!(
+            "warning: at iteration {} the opacity field gives every Gaussian the same density ({:.4e} per \
+             mm): it has collapsed to a constant, so the densities no longer tell vessels from \
+             background and density pruning cannot fire. With Adam, a coupled weight decay on the field \
+             does this once the image gradients are small: try optim.field_weight_decay = 0",
+            trainer.iteration, s.p50
+        ));
+    }
 }
