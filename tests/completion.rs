@@ -405,7 +405,7 @@ fn a_collapsed_field_is_reported() {
         "the run says so: {:?}",
         notes.0
     );
-    // Without the penalty the same run spreads the densities, and says nothing.
+    // Without the penalty the same steps spread the densities.
     let mut t = Trainer::new(tiny_case(), tiny_config(iterations), Device::ndarray().autodiff()).unwrap();
     assert!(t.density_spread().unwrap().is_constant(), "the field starts constant (its table starts near zero)");
     for _ in 0..iterations {

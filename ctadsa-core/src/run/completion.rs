@@ -145,25 +145,32 @@ pub fn run_completion(
         }
     }
     trainer.save_checkpoint(&ck_dir)?;
-    warn_if_constant(&trainer, &mut warned, monitor);
     let summary = write_outputs(out, case, &trainer)?;
+    if let Some(s) = summary.field_densities.filter(|_| summary.field_constant && !warned) {
+        monitor.note(&collapse_warning(trainer.iteration, s.p50));
+    }
     write_report(out)?;
     Ok(Outcome::Finished(Box::new(summary)))
 }
 
-/// Tells the user, once per run, when the trained field gives every Gaussian the same density.
+/// Tells the user, once per run, when the trained field gives every Gaussian the same density
+/// (at periodic checkpoints; the end of the run reads it from the summary).
 fn warn_if_constant(trainer: &Trainer, warned: &mut bool, monitor: &mut dyn Monitor) {
     if *warned || trainer.iteration == 0 {
         return;
     }
     if let Some(s) = trainer.density_spread().filter(|s| s.is_constant()) {
         *warned = true;
-        monitor.note(&format!(
-            "warning: at iteration {} the opacity field gives every Gaussian the same density ({:.4e} per \
-             mm): it has collapsed to a constant, so the densities no longer tell vessels from \
-             background and density pruning cannot fire. With Adam, a coupled weight decay on the field \
-             does this once the image gradients are small: try optim.field_weight_decay = 0",
-            trainer.iteration, s.p50
-        ));
+        monitor.note(&collapse_warning(trainer.iteration, s.p50));
     }
+}
+
+/// The warning for a field that gives every Gaussian the same `density` (per mm).
+fn collapse_warning(iteration: usize, density: f32) -> String {
+    format!(
+        "warning: at iteration {iteration} the opacity field gives every Gaussian the same density \
+         ({density:.4e} per mm): it has collapsed to a constant, so the densities no longer tell \
+         vessels from background and density pruning cannot fire. With Adam, a coupled weight decay \
+         on the field does this once the image gradients are small: try optim.field_weight_decay = 0"
+    )
 }
