@@ -164,6 +164,17 @@ pub fn print_summary(summary: &RunSummary, out: &Path) {
         "  Gaussians: {} (initial {} + {}), mesh: {} triangles at level {:.4}",
         summary.gaussians, summary.n1, summary.n2, summary.mesh_triangles, summary.mc_level
     );
+    if let Some(t) = &summary.training_time {
+        println!(
+            "  training: {:.1} min over {} steps (sum of the step times, across resumes), median step {:.1} ms, \
+             {} densification calls (median {:.0} ms)",
+            t.steps_s / 60.0,
+            t.steps,
+            1e3 * t.median_step_s,
+            t.densify_calls,
+            1e3 * t.densify_median_s
+        );
+    }
     if let Some(errors) = &summary.pose_errors {
         for e in errors {
             println!(

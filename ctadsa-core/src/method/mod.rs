@@ -13,4 +13,5 @@ pub mod optim;
 pub mod pose;
 pub mod ssim_op;
 pub mod train;
+pub mod training_time;
 pub mod working_box;

@@ -27,6 +27,7 @@ use crate::eval::surface_metrics::Coverage;
 use crate::method::field_health::DensitySpread;
 use crate::method::model::host_vec;
 use crate::method::train::{StepLog, Trainer};
+use crate::method::training_time::TrainingTime;
 use crate::output::centreline::{CentrelineSummary, SolidPart, completed_centreline, write_centreline};
 use crate::output::extraction::{
     LevelScore, best_level, completed_solid, density_scale, faint_level_field, join_prior, keep_connected_to_prior,
@@ -60,6 +61,8 @@ pub struct RunSummary {
     /// ([`crate::method::field_health`]).
     pub field_densities: Option<DensitySpread>,
     pub field_constant: bool,
+    /// The training time from the run's step log (across resumes; [`TrainingTime`]).
+    pub training_time: Option<TrainingTime>,
     /// Scores of the completed surface (exact distances, `docs/METRICS.md`) when the case has
     /// ground truth.
     pub metrics: Option<RegionScores>,
@@ -225,6 +228,7 @@ pub fn write_outputs(dir: &Path, case: &Case, trainer: &Trainer) -> Result<RunSu
         final_loss: trainer.history.last().map_or(f64::NAN, |s| s.loss),
         field_densities: spread,
         field_constant: spread.is_some_and(|s| s.is_constant()),
+        training_time: TrainingTime::of(&trainer.history),
         metrics: scored.as_ref().map(|r| r.scores),
         coverage: scored.as_ref().map(|r| r.coverage),
         paper_metrics: scored.as_ref().map(|r| r.paper),

@@ -1,0 +1,140 @@
+//! How long a training run took, read from its own step log (which checkpoints keep, so a run
+//! resumed across sittings is timed as one): the sum of the step times, the median step and its
+//! stages, the same per quarter of the run (the step grows with the number of Gaussians), and
+//! the densification calls.
+
+use serde::Serialize;
+
+use crate::method::train::{StageTimes, StepLog};
+
+/// The training time of a run, in seconds.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct TrainingTime {
+    /// Steps logged.
+    pub steps: usize,
+    /// Σ of every step's stage times (s): the run's training time without start-up,
+    /// checkpoints and the export. A step during which the process was stopped counts the
+    /// pause.
+    pub steps_s: f64,
+    /// Median step (s) over the run and the median of each stage.
+    pub median_step_s: f64,
+    pub median_stages_s: StageTimes,
+    /// The run in four consecutive quarters of its steps.
+    pub quarters: Vec<TrainingPhase>,
+    /// Densification calls, their median and largest time (s).
+    pub densify_calls: usize,
+    pub densify_median_s: f64,
+    pub densify_max_s: f64,
+}
+
+/// A stretch of consecutive steps.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct TrainingPhase {
+    /// Iterations done after the stretch's first and last step.
+    pub iterations: [usize; 2],
+    /// Gaussians after its first and its last step.
+    pub gaussians: [usize; 2],
+    /// Median step (s).
+    pub median_step_s: f64,
+}
+
+/// The sum of a step's stage times (s).
+fn step_s(t: &StageTimes) -> f64 {
+    t.field + t.render + t.losses + t.backward + t.optimizer + t.densify
+}
+
+/// The median of `values` (0 for none).
+fn median(mut values: Vec<f64>) -> f64 {
+    if values.is_empty() {
+        return 0.0;
+    }
+    values.sort_by(f64::total_cmp);
+    let n = values.len();
+    if n % 2 == 1 { values[n / 2] } else { 0.5 * (values[n / 2 - 1] + values[n / 2]) }
+}
+
+impl TrainingTime {
+    /// The time of the run whose step log is `history`; `None` when it has no steps.
+    pub fn of(history: &[StepLog]) -> Option<Self> {
+        if history.is_empty() {
+            return None;
+        }
+        let stage = |pick: fn(&StageTimes) -> f64| median(history.iter().map(|s| pick(&s.times)).collect());
+        let quarters = (0..4)
+            .filter_map(|q| {
+                let part = &history[q * history.len() / 4..(q + 1) * history.len() / 4];
+                let (a, b) = (part.first()?, part.last()?);
+                Some(TrainingPhase {
+                    iterations: [a.iteration, b.iteration],
+                    gaussians: [a.gaussians, b.gaussians],
+                    median_step_s: median(part.iter().map(|s| step_s(&s.times)).collect()),
+                })
+            })
+            .collect();
+        let densify: Vec<f64> = history.iter().map(|s| s.times.densify).filter(|&t| t > 0.0).collect();
+        Some(Self {
+            steps: history.len(),
+            steps_s: history.iter().map(|s| step_s(&s.times)).sum(),
+            median_step_s: median(history.iter().map(|s| step_s(&s.times)).collect()),
+            median_stages_s: StageTimes {
+                field: stage(|t| t.field),
+                render: stage(|t| t.render),
+                losses: stage(|t| t.losses),
+                backward: stage(|t| t.backward),
+                optimizer: stage(|t| t.optimizer),
+                densify: stage(|t| t.densify),
+            },
+            quarters,
+            densify_calls: densify.len(),
+            densify_median_s: median(densify.clone()),
+            densify_max_s: densify.iter().copied().fold(0.0, f64::max),
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn step(iteration: usize, gaussians: usize, field: f64, densify: f64) -> StepLog {
+        StepLog {
+            iteration,
+            gaussians,
+            times: StageTimes { field, backward: 0.1, densify, ..StageTimes::default() },
+            ..StepLog::default()
+        }
+    }
+
+    #[test]
+    fn sums_steps_and_takes_medians_per_quarter_and_of_densify_calls() {
+        // 8 steps: the second half twice as slow (more Gaussians), two densify calls.
+        let history: Vec<StepLog> = (1..=8)
+            .map(|i| {
+                let field = if i <= 4 { 0.1 } else { 0.3 };
+                let densify = match i {
+                    3 => 0.05,
+                    6 => 0.07,
+                    _ => 0.0,
+                };
+                step(i, if i <= 4 { 100 } else { 200 + i }, field, densify)
+            })
+            .collect();
+        let t = TrainingTime::of(&history).unwrap();
+        assert_eq!(t.steps, 8);
+        assert!((t.steps_s - (4.0 * 0.2 + 4.0 * 0.4 + 0.12)).abs() < 1e-12);
+        // Steps: 0.2, 0.2, 0.25, 0.2, 0.4, 0.47, 0.4, 0.4 → median of the middle two (0.25, 0.4).
+        assert!((t.median_step_s - 0.325).abs() < 1e-12);
+        assert!((t.median_stages_s.field - 0.2).abs() < 1e-12);
+        assert_eq!(t.median_stages_s.densify, 0.0);
+        assert_eq!(t.quarters.len(), 4);
+        assert_eq!(t.quarters[0].iterations, [1, 2]);
+        assert_eq!(t.quarters[3].gaussians, [207, 208]);
+        assert!((t.quarters[1].median_step_s - 0.225).abs() < 1e-12);
+        assert!((t.quarters[2].median_step_s - 0.435).abs() < 1e-12);
+        assert_eq!(t.densify_calls, 2);
+        assert!((t.densify_median_s - 0.06).abs() < 1e-12 && (t.densify_max_s - 0.07).abs() < 1e-12);
+        assert_eq!(TrainingTime::of(&[]), None);
+        // Fewer steps than quarters: only the non-empty quarters.
+        assert_eq!(TrainingTime::of(&history[..2]).unwrap().quarters.len(), 2);
+    }
+}
