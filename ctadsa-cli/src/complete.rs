@@ -190,6 +190,11 @@ pub fn print_summary(summary: &RunSummary, out: &Path) {
     println!("\n| region | surface | CD mean (mm) | CD sum (mm) | HD95 (mm) | HD max (mm) |");
     println!("|---|---|---:|---:|---:|---:|");
     let row = |region: &str, what: &str, s: &ctadsa_core::eval::metrics::SurfaceScores| {
+        if !s.cd_sum_mm.is_finite() {
+            // A surface with no part in the region (the prior in the missing vessels' region).
+            println!("| {region} | {what} | — | — | — | — |");
+            return;
+        }
         println!(
             "| {region} | {what} | {:.3} | {:.3} | {:.3} | {:.3} |",
             s.cd_mean_mm, s.cd_sum_mm, s.hd95_mm, s.hd_mm
