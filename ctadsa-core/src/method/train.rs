@@ -46,6 +46,13 @@ pub struct StageTimes {
     pub densify: f64,
 }
 
+impl StageTimes {
+    /// The whole step (s).
+    pub fn total(&self) -> f64 {
+        self.field + self.render + self.losses + self.backward + self.optimizer + self.densify
+    }
+}
+
 /// One step's numbers.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 pub struct StepLog {

@@ -6,6 +6,7 @@
 use serde::Serialize;
 
 use crate::method::train::{StageTimes, StepLog};
+use crate::stats::percentile;
 
 /// The training time of a run, in seconds.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -38,19 +39,9 @@ pub struct TrainingPhase {
     pub median_step_s: f64,
 }
 
-/// The sum of a step's stage times (s).
-fn step_s(t: &StageTimes) -> f64 {
-    t.field + t.render + t.losses + t.backward + t.optimizer + t.densify
-}
-
 /// The median of `values` (0 for none).
-fn median(mut values: Vec<f64>) -> f64 {
-    if values.is_empty() {
-        return 0.0;
-    }
-    values.sort_by(f64::total_cmp);
-    let n = values.len();
-    if n % 2 == 1 { values[n / 2] } else { 0.5 * (values[n / 2 - 1] + values[n / 2]) }
+fn median(values: &[f64]) -> f64 {
+    if values.is_empty() { 0.0 } else { percentile(values, 50.0) }
 }
 
 impl TrainingTime {
@@ -59,23 +50,24 @@ impl TrainingTime {
         if history.is_empty() {
             return None;
         }
-        let stage = |pick: fn(&StageTimes) -> f64| median(history.iter().map(|s| pick(&s.times)).collect());
+        let step_s: Vec<f64> = history.iter().map(|s| s.times.total()).collect();
+        let stage = |pick: fn(&StageTimes) -> f64| median(&history.iter().map(|s| pick(&s.times)).collect::<Vec<_>>());
         let quarters = (0..4)
             .filter_map(|q| {
-                let part = &history[q * history.len() / 4..(q + 1) * history.len() / 4];
-                let (a, b) = (part.first()?, part.last()?);
+                let range = q * history.len() / 4..(q + 1) * history.len() / 4;
+                let (a, b) = (history[range.clone()].first()?, history[range.clone()].last()?);
                 Some(TrainingPhase {
                     iterations: [a.iteration, b.iteration],
                     gaussians: [a.gaussians, b.gaussians],
-                    median_step_s: median(part.iter().map(|s| step_s(&s.times)).collect()),
+                    median_step_s: median(&step_s[range]),
                 })
             })
             .collect();
         let densify: Vec<f64> = history.iter().map(|s| s.times.densify).filter(|&t| t > 0.0).collect();
         Some(Self {
             steps: history.len(),
-            steps_s: history.iter().map(|s| step_s(&s.times)).sum(),
-            median_step_s: median(history.iter().map(|s| step_s(&s.times)).collect()),
+            steps_s: step_s.iter().sum(),
+            median_step_s: median(&step_s),
             median_stages_s: StageTimes {
                 field: stage(|t| t.field),
                 render: stage(|t| t.render),
@@ -86,7 +78,7 @@ impl TrainingTime {
             },
             quarters,
             densify_calls: densify.len(),
-            densify_median_s: median(densify.clone()),
+            densify_median_s: median(&densify),
             densify_max_s: densify.iter().copied().fold(0.0, f64::max),
         })
     }
