@@ -12,10 +12,10 @@ use ctadsa_core::data::case::Case;
 use ctadsa_core::data::synth::{SynthConfig, synthesize};
 use ctadsa_core::method::train::{StepLog, Trainer};
 use ctadsa_core::output::export::{RunSummary, write_outputs};
-use ctadsa_core::run::completion::{Monitor, Outcome, Start, run_completion};
+use ctadsa_core::run::completion::{Monitor, Outcome, Silent, Start, run_completion};
 
 /// The built-in quick configuration, shrunk: fewer Gaussians and iterations, no densification
-/// (so that runs on different backends keep the same Gaussians).
+/// (so that runs on different backends keep the same Gaussians), no prior-only member.
 fn tiny_config(iterations: usize) -> Config {
     let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/configs/quick.toml")).unwrap();
     let overrides: Vec<String> = [
@@ -28,6 +28,7 @@ fn tiny_config(iterations: usize) -> Config {
         "loss.pa_start=20".into(),
         "densify.enabled=false".into(),
         "output.metric_samples=8000".into(),
+        "run.prior_only_member=false".into(),
     ]
     .into();
     Config::from_toml_str(&text, "configs/quick.toml", &overrides).unwrap()
@@ -415,6 +416,73 @@ fn a_collapsed_field_is_reported() {
     assert!(!learnt.is_constant() && learnt.p99 > 2.0 * learnt.p1, "{learnt:?}");
 }
 
+/// Stops a run once, at the given iteration of its second training (the prior-only member).
+struct StopInMember {
+    at: usize,
+    trainings: usize,
+    iteration: usize,
+}
+
+impl Monitor for StopInMember {
+    fn started(&mut self, _: &Trainer, _: &Config) {
+        self.trainings += 1;
+    }
+    fn stepped(&mut self, trainer: &Trainer, _: &StepLog) {
+        self.iteration = trainer.iteration;
+    }
+    fn should_stop(&self) -> bool {
+        self.trainings == 2 && self.iteration == self.at
+    }
+}
+
+/// The density a finished run in `dir` wrote.
+fn written_density(dir: &std::path::Path) -> Vec<f32> {
+    ctadsa_core::data::volume::nifti_io::read_nifti(&dir.join("density.nii.gz")).expect("density.nii.gz").data
+}
+
+#[test]
+fn the_prior_only_member_is_trained_resumed_and_averaged_in() {
+    let iterations = 20;
+    let base = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("member-{}", std::process::id()));
+    let device = Device::ndarray().autodiff();
+    let finish = |cfg: Config, dir: &std::path::Path, start: Start| -> RunSummary {
+        match run_completion(tiny_case(), cfg, device.clone(), dir, start, &mut History(Vec::new())).expect("run") {
+            Outcome::Finished(s) => *s,
+            Outcome::Interrupted { .. } => panic!("not asked to stop"),
+        }
+    };
+    // With the member, stopped half-way through the member and resumed.
+    let mut cfg = tiny_config(iterations);
+    cfg.run.prior_only_member = true;
+    let with = base.join("with");
+    let mut stop = StopInMember { at: iterations / 2, trainings: 0, iteration: 0 };
+    let outcome =
+        run_completion(tiny_case(), cfg.clone(), device.clone(), &with, Start::Overwrite, &mut stop).expect("run");
+    let Outcome::Interrupted { checkpoint } = outcome else { panic!("asked to stop in the member") };
+    assert!(checkpoint.starts_with(with.join("prior-only-member")), "{}", checkpoint.display());
+    let refused = run_completion(tiny_case(), cfg.clone(), device.clone(), &with, Start::Fresh, &mut Silent);
+    assert!(refused.is_err(), "a folder holding a member's checkpoint holds a run");
+    let summary = finish(cfg.clone(), &with, Start::Resume("latest"));
+    // The run alone and the prior-only baseline, each straight through.
+    cfg.run.prior_only_member = false;
+    let alone = finish(cfg.clone(), &base.join("alone"), Start::Overwrite);
+    let mut baseline_cfg = cfg.clone();
+    baseline_cfg.init.n2 = 0;
+    baseline_cfg.init.n2_mode = ctadsa_core::config::SeedMode::None;
+    let baseline = finish(baseline_cfg, &base.join("baseline"), Start::Overwrite);
+    let member = summary.prior_only_member.as_ref().expect("the member is in the summary");
+    assert_eq!(member.gaussians, baseline.gaussians, "the member is the prior-only baseline");
+    assert_eq!(summary.gaussians, alone.gaussians);
+    assert!(alone.prior_only_member.is_none() && baseline.n2 == 0 && alone.n2 > 0);
+    let (mean, a, b) =
+        (written_density(&with), written_density(&base.join("alone")), written_density(&base.join("baseline")));
+    assert_eq!((mean.len(), a.len()), (b.len(), b.len()), "one grid");
+    let scale = a.iter().fold(0f32, |m, v| m.max(v.abs()));
+    let worst = mean.iter().zip(a.iter().zip(&b)).map(|(m, (x, y))| (m - 0.5 * (x + y)).abs()).fold(0f32, f32::max);
+    assert!(worst <= 1e-5 * scale, "the density is the mean of the run's and the member's: off by {worst} of {scale}");
+    assert!(a.iter().zip(&b).any(|(x, y)| (x - y).abs() > 0.01 * scale), "the two members differ");
+}
+
 /// Copies a folder tree.
 fn copy_dir(from: &std::path::Path, to: &std::path::Path) {
     std::fs::create_dir_all(to).unwrap();
@@ -443,7 +511,7 @@ fn no_ground_truth_steers_the_method() {
             trainer.step().unwrap();
         }
         let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("tiny-{name}-{}", std::process::id()));
-        let summary = write_outputs(&dir, c, &trainer).unwrap();
+        let summary = write_outputs(&dir, c, &trainer, None).unwrap();
         // The working box comes from the views and the prior, yet holds the whole tree: it is
         // within a few scan steps of the case's box (the complete tree's box + 1 mm).
         let (inputs, case_box) = (trainer.working_box, c.file.volume.bounds());

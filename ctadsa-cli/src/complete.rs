@@ -92,6 +92,7 @@ impl Monitor for Terminal {
             cfg.run.iterations
         );
         self.iterations = cfg.run.iterations;
+        self.pb.finish();
         self.pb = bar(cfg.run.iterations as u64, "complete");
         self.pb.set_position(trainer.iteration as u64);
         self.first = trainer.iteration;
@@ -174,6 +175,10 @@ pub fn print_summary(summary: &RunSummary, out: &Path) {
             t.densify_calls,
             1e3 * t.densify_median_s
         );
+    }
+    if let Some(m) = &summary.prior_only_member {
+        let minutes = m.training_time.as_ref().map_or(0.0, |t| t.steps_s / 60.0);
+        println!("  prior-only member (its density averaged in): {} Gaussians, training {minutes:.1} min", m.gaussians);
     }
     if let Some(errors) = &summary.pose_errors {
         for e in errors {

@@ -8,7 +8,8 @@ mod common;
 use common::{BIN, small_case, tmp};
 
 /// `ctadsa complete` on `case` into `run` with the quick config shrunk: `iterations`, a
-/// checkpoint every `every` steps, `n1` + `n2` Gaussians, no densification; then `extra`.
+/// checkpoint every `every` steps, `n1` + `n2` Gaussians, no densification, no prior-only
+/// member; then `extra`.
 fn complete_cmd(
     case: &std::path::Path,
     run: &std::path::Path,
@@ -27,6 +28,7 @@ fn complete_cmd(
         format!("init.n2={n2}"),
         "densify.enabled=false".into(),
         "output.metric_samples=2000".into(),
+        "run.prior_only_member=false".into(),
     ] {
         c.args(["--set", &s]);
     }
@@ -51,6 +53,7 @@ fn sigterm_saves_a_checkpoint_exits_non_zero_and_resume_finishes() {
                 "init.n2=300",
                 "densify.enabled=false",
                 "output.metric_samples=2000",
+                "run.prior_only_member=false",
             ]
             .iter()
             .flat_map(|s| ["--set".to_string(), s.to_string()]),

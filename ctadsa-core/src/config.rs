@@ -44,6 +44,13 @@ pub struct RunConfig {
     pub views: Vec<usize>,
     /// Where the working box comes from.
     pub working_box: WorkingBoxSource,
+    /// Also train a member from the prior alone (this configuration with `init.n2 = 0`) and
+    /// extract the surface from the mean of the two density fields. The image seeds put density
+    /// on the missing vessels and, with few views, also at crossings of different vessels'
+    /// back-projections (ghosts); the prior-only member grows vessels out of the prior only, so
+    /// in the mean the ghosts fall under the level while what both find stays. Doubles the
+    /// training time. Ignored when the run has no image seeds or no Gaussians on the prior.
+    pub prior_only_member: bool,
 }
 
 /// Where the reconstruction's working box comes from.
@@ -66,6 +73,7 @@ impl Default for RunConfig {
             image_binning: 1,
             views: vec![],
             working_box: WorkingBoxSource::Inputs,
+            prior_only_member: false,
         }
     }
 }
@@ -630,6 +638,21 @@ impl Config {
     pub fn to_toml(&self) -> String {
         toml::to_string_pretty(self).unwrap_or_default()
     }
+
+    /// The configuration of the prior-only member (`run.prior_only_member`): this one without
+    /// image seeds. `None` when the member is off, the run has no image seeds (the member would
+    /// be the run itself) or no Gaussians on the prior (the member would have none).
+    pub fn prior_only_member(&self) -> Option<Config> {
+        let seeded = self.init.n2 > 0 && self.init.n2_mode != SeedMode::None;
+        if !self.run.prior_only_member || !seeded || self.init.n1 == 0 {
+            return None;
+        }
+        let mut member = self.clone();
+        member.init.n2 = 0;
+        member.init.n2_mode = SeedMode::None;
+        member.run.prior_only_member = false;
+        Some(member)
+    }
 }
 
 #[cfg(test)]
@@ -662,6 +685,24 @@ mod tests {
         assert_eq!(out.level_mask_threshold_for(3, 0.05), 0.03);
         out.level_mask_threshold_two_views = 0.0;
         assert_eq!(out.level_mask_threshold_for(2, 0.05), 0.03, "0 falls back to the general threshold");
+    }
+
+    #[test]
+    fn the_prior_only_member_is_the_run_without_image_seeds() {
+        let off = Config::load(None, &[]).unwrap();
+        assert!(off.prior_only_member().is_none(), "off by default");
+        let on = Config::load(None, &["run.prior_only_member=true".into()]).unwrap();
+        let member = on.prior_only_member().expect("a member");
+        assert_eq!((member.init.n2, member.init.n2_mode), (0, SeedMode::None));
+        assert!(!member.run.prior_only_member, "a member has no member");
+        let mut same = member.clone();
+        same.init = on.init.clone();
+        same.run.prior_only_member = true;
+        assert_eq!(same, on, "only the seeds differ");
+        let unseeded = Config::load(None, &["run.prior_only_member=true".into(), "init.n2=0".into()]).unwrap();
+        assert!(unseeded.prior_only_member().is_none(), "without image seeds the member would be the run");
+        let no_prior = Config::load(None, &["run.prior_only_member=true".into(), "init.n1=0".into()]).unwrap();
+        assert!(no_prior.prior_only_member().is_none(), "without prior Gaussians the member would be empty");
     }
 
     #[test]

@@ -63,6 +63,8 @@ pub struct RunSummary {
     pub field_constant: bool,
     /// The training time from the run's step log (across resumes; [`TrainingTime`]).
     pub training_time: Option<TrainingTime>,
+    /// The prior-only member whose density was averaged in (`run.prior_only_member`).
+    pub prior_only_member: Option<MemberSummary>,
     /// Scores of the completed surface (exact distances, `docs/METRICS.md`) when the case has
     /// ground truth.
     pub metrics: Option<RegionScores>,
@@ -80,13 +82,39 @@ pub struct RunSummary {
     pub pose_errors: Option<Vec<PoseError>>,
 }
 
+/// The prior-only member of a run (`run.prior_only_member`).
+#[derive(Debug, Clone, Serialize)]
+pub struct MemberSummary {
+    pub gaussians: usize,
+    pub final_loss: f64,
+    /// Its training time (the run's own is [`RunSummary::training_time`]).
+    pub training_time: Option<TrainingTime>,
+}
+
 /// The density field on a grid over the working box.
 pub fn density_volume(trainer: &Trainer) -> Result<Volume<f32>> {
     let voxel = if trainer.cfg.output.voxel_mm > 0.0 { trainer.cfg.output.voxel_mm } else { trainer.voxel_mm };
-    let grid = Grid::covering(&trainer.working_box, voxel)?;
+    density_on(trainer, Grid::covering(&trainer.working_box, voxel)?)
+}
+
+/// The density field of `trainer`'s Gaussians on `grid`.
+fn density_on(trainer: &Trainer, grid: Grid) -> Result<Volume<f32>> {
     let m = trainer.model().valid();
     let vol = ctadsa_render::voxelize(&m.gaussians(), &grid.to_render_grid()?, &trainer.settings)?;
     Ok(Volume { grid, index_to_world: grid.index_to_world(), data: host_vec(vol) })
+}
+
+/// The density of the run, or with a prior-only member (`run.prior_only_member`) the mean of
+/// the run's and the member's densities on the run's grid.
+pub fn completion_density(trainer: &Trainer, member: Option<&Trainer>) -> Result<Volume<f32>> {
+    let mut volume = density_volume(trainer)?;
+    if let Some(member) = member {
+        let other = density_on(member, volume.grid)?;
+        for (d, o) in volume.data.iter_mut().zip(&other.data) {
+            *d = 0.5 * (*d + o);
+        }
+    }
+    Ok(volume)
 }
 
 /// The iso-level: relative to the 99.9th percentile of the positive densities, or absolute.
@@ -189,12 +217,14 @@ fn write_poses(dir: &Path, case: &Case, trainer: &Trainer, prior: Option<&TriMes
     Ok(Some(pose_errors(&nominal, &learned, &truth, &points)?))
 }
 
-/// Writes the outputs of a run into `dir`.
-pub fn write_outputs(dir: &Path, case: &Case, trainer: &Trainer) -> Result<RunSummary> {
+/// Writes the outputs of a run into `dir`; with a prior-only `member` the density, the surface
+/// and what comes from them are of the mean density ([`completion_density`]), the Gaussians
+/// and the renders the run's own.
+pub fn write_outputs(dir: &Path, case: &Case, trainer: &Trainer, member: Option<&Trainer>) -> Result<RunSummary> {
     let cfg = &trainer.cfg;
     write_file(&dir.join("config.toml"), cfg.to_toml().as_bytes())?;
     let gaussians = write_gaussians(dir, trainer)?;
-    let volume = density_volume(trainer)?;
+    let volume = completion_density(trainer, member)?;
     write_nifti(&dir.join("density.nii.gz"), &volume, "ctadsa density (per mm)")?;
     let prior = case.prior_mesh()?;
     let surface = extract_completed_surface(dir, trainer, &volume, prior.as_ref())?;
@@ -229,6 +259,11 @@ pub fn write_outputs(dir: &Path, case: &Case, trainer: &Trainer) -> Result<RunSu
         field_densities: spread,
         field_constant: spread.is_some_and(|s| s.is_constant()),
         training_time: TrainingTime::of(&trainer.history),
+        prior_only_member: member.map(|m| MemberSummary {
+            gaussians: m.model().len(),
+            final_loss: m.history.last().map_or(f64::NAN, |s| s.loss),
+            training_time: TrainingTime::of(&m.history),
+        }),
         metrics: scored.as_ref().map(|r| r.scores),
         coverage: scored.as_ref().map(|r| r.coverage),
         paper_metrics: scored.as_ref().map(|r| r.paper),

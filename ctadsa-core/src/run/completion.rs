@@ -53,9 +53,15 @@ pub struct Silent;
 
 impl Monitor for Silent {}
 
-/// Whether `out` holds (part of) a run: a summary or a checkpoint.
+/// The folder, inside a run's folder, of the prior-only member's checkpoints
+/// (`run.prior_only_member`).
+pub const MEMBER_DIR: &str = "prior-only-member";
+
+/// Whether `out` holds (part of) a run: a summary or a checkpoint (its own or its member's).
 pub fn holds_run(out: &Path) -> bool {
-    out.join("summary.json").exists() || !Trainer::checkpoints(&out.join("checkpoints")).is_empty()
+    out.join("summary.json").exists()
+        || !Trainer::checkpoints(&out.join("checkpoints")).is_empty()
+        || !Trainer::checkpoints(&out.join(MEMBER_DIR).join("checkpoints")).is_empty()
 }
 
 fn remove(path: &Path) -> Result<()> {
@@ -89,6 +95,7 @@ pub fn start_trainer(
         Start::Overwrite => {
             remove(&out.join("summary.json"))?;
             remove(&ck_dir)?;
+            remove(&out.join(MEMBER_DIR))?;
             Trainer::new(case, cfg.clone(), device)
         }
         Start::Resume("latest") => {
@@ -118,6 +125,8 @@ pub fn start_trainer(
 /// Runs the optimisation of `case` with `cfg` on `device` (an autodiff device) in `out`:
 /// checkpoints every `run.checkpoint_every` iterations and at the end, a checkpoint and
 /// [`Outcome::Interrupted`] when the monitor asks to stop, otherwise the outputs and the report.
+/// With `run.prior_only_member` the member is trained next, in `out/`[`MEMBER_DIR`] (resumed
+/// from its own checkpoints), and the outputs come from both.
 pub fn run_completion(
     case: &Case,
     cfg: Config,
@@ -127,30 +136,61 @@ pub fn run_completion(
     monitor: &mut dyn Monitor,
 ) -> Result<Outcome> {
     std::fs::create_dir_all(out).map_err(|e| CoreError::io(out, e))?;
-    let ck_dir = out.join("checkpoints");
-    let mut trainer = start_trainer(case, &cfg, device, out, start, monitor)?;
-    monitor.started(&trainer, &cfg);
-    let mut warned = false;
-    while trainer.iteration < cfg.run.iterations {
-        let log = trainer.step()?;
-        monitor.stepped(&trainer, &log);
-        let every = cfg.run.checkpoint_every;
-        if every > 0 && trainer.iteration % every == 0 && trainer.iteration < cfg.run.iterations {
-            trainer.save_checkpoint(&ck_dir)?;
-            warn_if_constant(&trainer, &mut warned, monitor);
+    let trainer = start_trainer(case, &cfg, device.clone(), out, start, monitor)?;
+    let (trainer, warned) = match train(trainer, &cfg, out, monitor)? {
+        Trained::Done { trainer, warned } => (*trainer, warned),
+        Trained::Stopped(checkpoint) => return Ok(Outcome::Interrupted { checkpoint }),
+    };
+    let member = match cfg.prior_only_member() {
+        Some(member_cfg) => {
+            let dir = out.join(MEMBER_DIR);
+            let member_start = if holds_run(&dir) { Start::Resume("latest") } else { Start::Fresh };
+            monitor
+                .note(&format!("the prior-only member (run.prior_only_member: no image seeds) in {}", dir.display()));
+            std::fs::create_dir_all(&dir).map_err(|e| CoreError::io(&dir, e))?;
+            let member = start_trainer(case, &member_cfg, device, &dir, member_start, monitor)?;
+            match train(member, &member_cfg, &dir, monitor)? {
+                Trained::Done { trainer, .. } => Some(*trainer),
+                Trained::Stopped(checkpoint) => return Ok(Outcome::Interrupted { checkpoint }),
+            }
         }
-        if monitor.should_stop() {
-            let checkpoint = trainer.save_checkpoint(&ck_dir)?;
-            return Ok(Outcome::Interrupted { checkpoint });
-        }
-    }
-    trainer.save_checkpoint(&ck_dir)?;
-    let summary = write_outputs(out, case, &trainer)?;
+        None => None,
+    };
+    let summary = write_outputs(out, case, &trainer, member.as_ref())?;
     if let Some(s) = summary.field_densities.filter(|_| summary.field_constant && !warned) {
         monitor.note(&collapse_warning(trainer.iteration, s.p50));
     }
     write_report(out)?;
     Ok(Outcome::Finished(Box::new(summary)))
+}
+
+/// How [`train`] ended.
+enum Trained {
+    /// All iterations done, the last checkpoint saved; `warned`: the collapse warning was given.
+    Done { trainer: Box<Trainer>, warned: bool },
+    /// Stopped on request after saving this checkpoint.
+    Stopped(PathBuf),
+}
+
+/// Trains `trainer` to `cfg.run.iterations`, checkpointing into `out/checkpoints`.
+fn train(mut trainer: Trainer, cfg: &Config, out: &Path, monitor: &mut dyn Monitor) -> Result<Trained> {
+    let ck_dir = out.join("checkpoints");
+    monitor.started(&trainer, cfg);
+    let mut warned = false;
+    while trainer.iteration < cfg.run.iterations {
+        let log = trainer.step()?;
+        monitor.stepped(&trainer, &log);
+        let every = cfg.run.checkpoint_every;
+        if every > 0 && trainer.iteration.is_multiple_of(every) && trainer.iteration < cfg.run.iterations {
+            trainer.save_checkpoint(&ck_dir)?;
+            warn_if_constant(&trainer, &mut warned, monitor);
+        }
+        if monitor.should_stop() {
+            return Ok(Trained::Stopped(trainer.save_checkpoint(&ck_dir)?));
+        }
+    }
+    trainer.save_checkpoint(&ck_dir)?;
+    Ok(Trained::Done { trainer: Box::new(trainer), warned })
 }
 
 /// Tells the user, once per run, when the trained field gives every Gaussian the same density
