@@ -85,12 +85,14 @@ struct CheckpointState {
 }
 
 /// The configuration less what may change on resume (`[output]`, `run.iterations`,
-/// `run.checkpoint_every`), as TOML.
+/// `run.checkpoint_every`, `run.prior_only_member`), as TOML.
 fn training_settings(cfg: &Config) -> String {
     let mut c = cfg.clone();
     c.output = Default::default();
     c.run.iterations = 0;
     c.run.checkpoint_every = 0;
+    // The member is a second model beside this one; it changes nothing of this one's training.
+    c.run.prior_only_member = false;
     c.to_toml()
 }
 
@@ -824,6 +826,7 @@ mod tests {
         other.loss.pa_weight *= 2.0;
         other.output.mc_level = 0.5;
         other.run.iterations += 10;
+        other.run.prior_only_member = !base.run.prior_only_member;
         assert_eq!(settings_differences(&saved, &training_settings(&other)), vec!["init.n1", "loss.pa_weight"]);
         // A checkpoint of a version without a setting that now exists: equal while the setting
         // keeps its default, different once it does not.
