@@ -1,4 +1,4 @@
-//! The field's MLP layer op, the SSIM window-blur op and the SSIM op on wgpu against the CPU (when a wgpu
+//! The field's MLP layer op, the bounded scale op, the SSIM window-blur op and the SSIM op on wgpu against the CPU (when a wgpu
 //! adapter exists; `CTADSA_REQUIRE_WGPU=1` makes a missing adapter a failure).
 #![cfg(feature = "wgpu")]
 #![allow(deprecated)] // burn-ndarray is deprecated in burn 0.22; it is the CPU backend the tests use.
@@ -7,6 +7,7 @@ use burn::tensor::{Device, Tensor, TensorData};
 use ctadsa_core::method::blur_op::window_blur;
 use ctadsa_core::method::model::host_vec;
 use ctadsa_core::method::model::linear_op::fused_linear;
+use ctadsa_core::method::model::scale_op::bounded_scale;
 use ctadsa_core::method::ssim_op::ssim_mean;
 
 fn values(len: usize, seed: u64) -> Vec<f32> {
@@ -58,6 +59,24 @@ fn window_blur_on_wgpu_matches_cpu() {
     let (a, b) = (run(Device::ndarray()), run(gpu));
     assert_close("blur forward", &a.0, &b.0);
     assert_close("blur backward", &a.1, &b.1);
+}
+
+#[test]
+fn bounded_scale_on_wgpu_matches_cpu() {
+    let Some(gpu) = wgpu_or_skip("bounded scale") else { return };
+    let n = 301;
+    let (raw, up) = (values(3 * n, 7).iter().map(|v| 12.0 * v).collect::<Vec<f32>>(), values(3 * n, 8));
+    let run = |device: Device| {
+        let device = device.autodiff();
+        let raw = Tensor::<2>::from_data(TensorData::new(raw.clone(), [n, 3]), &device).require_grad();
+        let up = Tensor::<2>::from_data(TensorData::new(up.clone(), [n, 3]), &device);
+        let out = bounded_scale(raw.clone(), 0.05, 5.0);
+        let grads = (out.clone() * up).sum().backward();
+        (host_vec(out), host_vec(raw.grad(&grads).unwrap()))
+    };
+    let (a, b) = (run(Device::ndarray()), run(gpu));
+    assert_close("bounded scale forward", &a.0, &b.0);
+    assert_close("bounded scale backward", &a.1, &b.1);
 }
 
 #[test]

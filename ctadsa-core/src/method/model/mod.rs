@@ -5,9 +5,9 @@ pub mod field;
 pub mod hash_grid;
 pub mod hash_op;
 pub mod linear_op;
+pub mod scale_op;
 
 use burn::module::{Module, Param};
-use burn::tensor::activation::sigmoid;
 use burn::tensor::{Device, Tensor, TensorData};
 use ctadsa_render::Gaussians;
 
@@ -146,7 +146,7 @@ impl GaussianModel {
     /// Scales `[N, 3]` (mm).
     pub fn scales(&self) -> Tensor<2> {
         let b = self.bounds;
-        sigmoid(self.raw_scales.val()).mul_scalar(b.max_mm - b.min_mm).add_scalar(b.min_mm)
+        scale_op::bounded_scale(self.raw_scales.val(), b.min_mm, b.max_mm)
     }
 
     /// Densities `[N]` from the field at the centres.
