@@ -10,6 +10,7 @@ pub mod loss;
 pub mod model;
 pub mod ndarray_host;
 pub mod optim;
+mod par_buffer;
 pub mod pose;
 pub mod ssim_op;
 pub mod train;

@@ -60,6 +60,7 @@ fn project_into(g: &HostGaussians, vp: &ViewParams, k_sigma: f32, ws: &mut Works
         .zip(ws.ranges.par_chunks_mut(CHUNK))
         .zip(ws.bins.par_iter_mut())
         .enumerate()
+        .with_max_len(1)
         .for_each(|(c, ((chunk, ranges), bins))| {
             project_chunk(g, c * CHUNK, vp, k_sigma, chunk, ranges);
             bins.fill(ranges, c * CHUNK, n_bands as usize);
@@ -258,7 +259,7 @@ pub fn render_view(g: &HostGaussians, vp: &ViewParams, k_sigma: f32, image: &mut
     let w = vp.width as usize;
     let stride = w + LANES;
     let (splats, bins) = (&ws.splats, &ws.bins);
-    image.par_chunks_mut(BAND as usize * w).enumerate().for_each(|(b, rows)| {
+    image.par_chunks_mut(BAND as usize * w).enumerate().with_max_len(1).for_each(|(b, rows)| {
         let mut buf = vec![0.0f32; BAND as usize * stride];
         // Chunk by chunk, so Gaussians are added in index order (thread-count independent).
         for bins in bins {

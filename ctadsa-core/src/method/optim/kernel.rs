@@ -85,6 +85,7 @@ pub fn adam_in_place(p: &mut [f32], g: &[f32], m: &mut [f32], v: &mut [f32], c: 
         .zip(g.par_chunks(CHUNK))
         .zip(m.par_chunks_mut(CHUNK))
         .zip(v.par_chunks_mut(CHUNK))
+        .with_max_len(1)
         .for_each(|(((p, g), m), v)| match c.weight_decay {
             Some(l) => adam_chunk::<true>(p, g, m, v, &k, l),
             None => adam_chunk::<false>(p, g, m, v, &k, 0.0),

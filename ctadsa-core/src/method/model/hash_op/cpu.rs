@@ -1,9 +1,13 @@
 //! CPU kernels of the hash encoding (host slices): forward, and backward to the positions and
 //! the tables. The table gradient is a scatter-add with one task per level (deterministic).
 
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicUsize, Ordering};
+
 use rayon::prelude::*;
 
 use crate::method::model::hash_grid::{HASH_P1, HASH_P2, HashGridConfig};
+use crate::method::par_buffer::zeroed;
 
 /// Per-level constants.
 #[derive(Debug, Clone, Copy)]
@@ -319,19 +323,50 @@ pub fn encode_with_jacobian(c: &HashGridConfig, u: &[f32], tables: &[f32]) -> (V
     let stride = c.rows();
     let mask = c.table_size() - 1;
     let n = u.len() / 3;
-    let mut jacobian = vec![0.0f32; l_n * n * f_n * 3];
-    let by_level: Vec<Vec<f32>> = jacobian
+    let mut jacobian = zeroed(l_n * n * f_n * 3);
+    // Per level, [chunk][chunk points · F]: a level's points in chunks, so that the thread that
+    // finishes its levels first takes over part of another's instead of waiting for it.
+    let by_level: Vec<Vec<Vec<f32>>> = jacobian
         .par_chunks_mut((n * f_n * 3).max(1))
         .zip(lv.par_iter())
-        .map(|(jac, level)| encode_level_jacobian(level, mask, u, tables, stride, f_n, jac))
+        .map(|(jac, level)| {
+            u.par_chunks(3 * POINT_CHUNK)
+                .zip(jac.par_chunks_mut(POINT_CHUNK * f_n * 3))
+                .map(|(u, jac)| encode_level_jacobian(level, mask, u, tables, stride, f_n, jac))
+                .collect()
+        })
         .collect();
-    let mut out = vec![0.0f32; n * l_n * f_n];
+    let mut out = zeroed(n * l_n * f_n);
     out.par_chunks_mut(l_n * f_n).enumerate().for_each(|(i, o)| {
+        let (chunk, at) = (i / POINT_CHUNK, i % POINT_CHUNK);
         for (l, level) in by_level.iter().enumerate() {
-            o[l * f_n..(l + 1) * f_n].copy_from_slice(&level[i * f_n..(i + 1) * f_n]);
+            o[l * f_n..(l + 1) * f_n].copy_from_slice(&level[chunk][at * f_n..(at + 1) * f_n]);
         }
     });
     (out, jacobian)
+}
+
+/// Points per task of [`encode_with_jacobian`] (a multiple of the AVX2 kernels' block of 8).
+const POINT_CHUNK: usize = 8192;
+
+/// Runs `work(l, slot)` once for every level `l` of `lv`, one level per task, the levels with the
+/// most rows first, each thread of the pool taking the next level when it is done with one
+/// (longest-first list scheduling): the dense levels are cheap, the hashed ones cost about the
+/// same, and splitting them evenly by count left one thread idle for up to a level's time.
+/// A level is worked on by one thread from start to end, so what it computes does not depend
+/// on the schedule.
+fn for_each_level_costliest_first<T: Send>(lv: &[Level], slots: Vec<T>, work: impl Fn(usize, T) + Sync) {
+    let mut order: Vec<usize> = (0..lv.len()).collect();
+    order.sort_by_key(|&l| std::cmp::Reverse(lv[l].rows));
+    let slots: Vec<Mutex<Option<T>>> = slots.into_iter().map(|s| Mutex::new(Some(s))).collect();
+    let next = AtomicUsize::new(0);
+    (0..rayon::current_num_threads()).into_par_iter().with_max_len(1).for_each(|_| {
+        while let Some(&l) = order.get(next.fetch_add(1, Ordering::Relaxed)) {
+            if let Some(slot) = slots[l].lock().ok().and_then(|mut s| s.take()) {
+                work(l, slot);
+            }
+        }
+    });
 }
 
 /// The gradients of [`encode_backward_into`] from the Jacobian of [`encode_with_jacobian`]
@@ -350,28 +385,33 @@ pub fn encode_backward_from_jacobian_into(
     let mask = c.table_size() - 1;
     let n = u.len() / 3;
     let by_level = split_by_level(&lv, c.rows(), grad_tables);
-    by_level
-        .into_par_iter()
-        .zip(lv.par_iter())
-        .enumerate()
-        .for_each(|(l, (mut features, level))| scatter_level(level, l, mask, u, grad, l_n, &mut features));
-    let mut grad_u = vec![0.0f32; 3 * n];
-    grad_u.par_chunks_mut(3).enumerate().for_each(|(i, gu)| {
-        for l in 0..l_n {
-            let g = &grad[(i * l_n + l) * f_n..(i * l_n + l + 1) * f_n];
-            let j = &jacobian[(l * n + i) * f_n * 3..(l * n + i + 1) * f_n * 3];
-            let mut level_part = [0.0f32; 3];
-            for (f, gf) in g.iter().enumerate() {
+    let scatter = || {
+        for_each_level_costliest_first(&lv, by_level, |l, mut features| {
+            scatter_level(&lv[l], l, mask, u, grad, l_n, &mut features)
+        })
+    };
+    // The position gradient needs no table: it fills the time a thread would otherwise wait
+    // for the other's last level.
+    let position = || {
+        let mut grad_u = zeroed(3 * n);
+        grad_u.par_chunks_mut(3).enumerate().for_each(|(i, gu)| {
+            for l in 0..l_n {
+                let g = &grad[(i * l_n + l) * f_n..(i * l_n + l + 1) * f_n];
+                let j = &jacobian[(l * n + i) * f_n * 3..(l * n + i + 1) * f_n * 3];
+                let mut level_part = [0.0f32; 3];
+                for (f, gf) in g.iter().enumerate() {
+                    for d in 0..3 {
+                        level_part[d] += gf * j[3 * f + d];
+                    }
+                }
                 for d in 0..3 {
-                    level_part[d] += gf * j[3 * f + d];
+                    gu[d] += level_part[d];
                 }
             }
-            for d in 0..3 {
-                gu[d] += level_part[d];
-            }
-        }
-    });
-    grad_u
+        });
+        grad_u
+    };
+    rayon::join(scatter, position).1
 }
 
 /// One level of [`encode_with_jacobian`]: returns the encoding `[N·F]` and writes `∂/∂u` per
@@ -514,7 +554,8 @@ mod tests {
     fn jacobian_path_gives_the_table_reading_gradients() {
         let c = HashGridConfig { levels: 6, features: 2, log2_table: 10, base_resolution: 4.0, growth: 1.8 };
         let mut rng = ChaCha8Rng::seed_from_u64(8);
-        let n = 3000;
+        // More than two of the forward's point chunks, the last one partial.
+        let n = 2 * POINT_CHUNK + 1003;
         let u: Vec<f32> = (0..3 * n).map(|_| rng.random_range(-0.05f32..1.05)).collect();
         let tables: Vec<f32> = (0..c.features * c.rows()).map(|_| rng.random_range(-1.0f32..1.0)).collect();
         let grad: Vec<f32> = (0..n * c.levels * c.features).map(|_| rng.random_range(-1.0f32..1.0)).collect();

@@ -4,7 +4,11 @@
 //! the weight gradient sums its per-block products in block order, so results are the same for
 //! any number of threads.
 
+use std::borrow::Cow;
+
 use rayon::prelude::*;
+
+use crate::method::par_buffer::{repeated_rows, zeroed};
 
 /// Rows per block of the bias-gradient sum (fixed, so the sum is the same for any thread count).
 const BIAS_BLOCK_ROWS: usize = 4096;
@@ -93,19 +97,18 @@ fn matmul_rows(dst: &mut [f32], a: &[f32], k: usize, b: MatRef, accumulate: bool
         }
         return;
     }
-    dst.par_chunks_mut(PRODUCT_BLOCK_ROWS * o).zip(a.par_chunks(PRODUCT_BLOCK_ROWS * k)).for_each(|(d, a)| {
-        matmul(d, MatRef::new(a, a.len() / k, k), b, accumulate);
-    });
+    dst.par_chunks_mut(PRODUCT_BLOCK_ROWS * o).zip(a.par_chunks(PRODUCT_BLOCK_ROWS * k)).with_max_len(1).for_each(
+        |(d, a)| {
+            matmul(d, MatRef::new(a, a.len() / k, k), b, accumulate);
+        },
+    );
 }
 
 /// `y = act(x w + b)` for `x` `[n, i]`, `w` `[i, o]`, `b` `[o]`: `[n, o]`.
 pub fn forward(x: &[f32], w: &[f32], b: &[f32], n: usize, relu: bool) -> Vec<f32> {
     let o = b.len();
     let i = w.len() / o.max(1);
-    let mut y: Vec<f32> = Vec::with_capacity(n * o);
-    for _ in 0..n {
-        y.extend_from_slice(b);
-    }
+    let mut y = repeated_rows(b, n);
     matmul_rows(&mut y, &x[..n * i], i, MatRef::new(w, i, o), true);
     if relu {
         y.par_chunks_mut(1 << 14).for_each(|c| c.iter_mut().for_each(|v| *v = v.max(0.0)));
@@ -126,15 +129,16 @@ pub fn backward(
     relu: bool,
 ) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
     let i = w.len() / o.max(1);
-    let gz: Vec<f32> = if relu {
-        gy.par_iter().zip(y.par_iter()).map(|(&g, &v)| if v > 0.0 { g } else { 0.0 }).collect()
+    let gz: Cow<[f32]> = if relu {
+        Cow::Owned(gy.par_iter().zip(y.par_iter()).map(|(&g, &v)| if v > 0.0 { g } else { 0.0 }).collect())
     } else {
-        gy.to_vec()
+        Cow::Borrowed(gy)
     };
     // ∂w = xᵀ gz: one product per row block, summed in block order.
     let partial: Vec<Vec<f32>> = x[..n * i]
         .par_chunks(PRODUCT_BLOCK_ROWS * i.max(1))
         .zip(gz.par_chunks(PRODUCT_BLOCK_ROWS * o.max(1)))
+        .with_max_len(1)
         .map(|(xb, gb)| {
             let rows = gb.len() / o.max(1);
             let mut p = vec![0.0f32; i * o];
@@ -148,7 +152,7 @@ pub fn backward(
             *a += v;
         }
     }
-    let mut gx = vec![0.0f32; n * i];
+    let mut gx = zeroed(n * i);
     matmul_rows(&mut gx, &gz, o, MatRef::new(w, i, o).t(), false);
     (gx, gw, column_sums(&gz, o))
 }
