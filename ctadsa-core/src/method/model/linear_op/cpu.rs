@@ -87,38 +87,41 @@ fn matmul(dst: &mut [f32], a: MatRef, b: MatRef, accumulate: bool) {
     }
 }
 
-/// `dst = a · b` (or `+=`) for row-major `a` `[n, k]` and any `b` `[k, o]`, in parallel over
-/// fixed blocks of `a`'s rows.
-fn matmul_rows(dst: &mut [f32], a: &[f32], k: usize, b: MatRef, accumulate: bool) {
-    let o = b.cols;
-    if o == 0 || k == 0 {
-        if !accumulate {
-            dst.fill(0.0);
-        }
-        return;
-    }
-    dst.par_chunks_mut(PRODUCT_BLOCK_ROWS * o).zip(a.par_chunks(PRODUCT_BLOCK_ROWS * k)).with_max_len(1).for_each(
-        |(d, a)| {
-            matmul(d, MatRef::new(a, a.len() / k, k), b, accumulate);
-        },
-    );
-}
-
-/// `y = act(x w + b)` for `x` `[n, i]`, `w` `[i, o]`, `b` `[o]`: `[n, o]`.
+/// `y = act(x w + b)` for `x` `[n, i]`, `w` `[i, o]`, `b` `[o]`: `[n, o]`. Each row block's
+/// product and ReLU run in one task, while the block is in cache.
 pub fn forward(x: &[f32], w: &[f32], b: &[f32], n: usize, relu: bool) -> Vec<f32> {
     let o = b.len();
     let i = w.len() / o.max(1);
     let mut y = repeated_rows(b, n);
-    matmul_rows(&mut y, &x[..n * i], i, MatRef::new(w, i, o), true);
-    if relu {
-        y.par_chunks_mut(1 << 14).for_each(|c| c.iter_mut().for_each(|v| *v = v.max(0.0)));
-    }
+    let wm = MatRef::new(w, i, o);
+    y.par_chunks_mut(PRODUCT_BLOCK_ROWS * o.max(1)).enumerate().with_max_len(1).for_each(|(block, d)| {
+        let rows = d.len() / o.max(1);
+        if i > 0 {
+            let first = block * PRODUCT_BLOCK_ROWS;
+            matmul(d, MatRef::new(&x[first * i..(first + rows) * i], rows, i), wm, true);
+        }
+        if relu {
+            d.iter_mut().for_each(|v| *v = v.max(0.0));
+        }
+    });
     y
+}
+
+/// What one task of [`backward`] sums over its rows: the weight gradient's product per
+/// [`PRODUCT_BLOCK_ROWS`] block, in block order, and the bias gradient's column sums.
+struct BlockSums {
+    weight: Vec<Vec<f32>>,
+    bias: Vec<f32>,
 }
 
 /// Gradients of the fused layer for the upstream gradient `gy` `[n, o]`, given the input `x`
 /// `[n, i]`, weight `w` `[i, o]` and the forward output `y` (its sign masks the ReLU):
 /// `(∂x [n, i], ∂w [i, o], ∂b [o])`.
+///
+/// One task per [`BIAS_BLOCK_ROWS`] rows masks the upstream gradient, sums its columns and runs
+/// the products of its [`PRODUCT_BLOCK_ROWS`] blocks, so the masked gradient stays in cache and
+/// never fills an `[n, o]` buffer. The sums are combined in block order: the same operations in
+/// the same order as separate passes over fixed blocks, and the same bits for any thread count.
 pub fn backward(
     x: &[f32],
     w: &[f32],
@@ -128,59 +131,64 @@ pub fn backward(
     o: usize,
     relu: bool,
 ) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
+    const { assert!(BIAS_BLOCK_ROWS.is_multiple_of(PRODUCT_BLOCK_ROWS)) };
     let i = w.len() / o.max(1);
-    let gz: Cow<[f32]> = if relu {
-        Cow::Owned(gy.par_iter().zip(y.par_iter()).map(|(&g, &v)| if v > 0.0 { g } else { 0.0 }).collect())
-    } else {
-        Cow::Borrowed(gy)
-    };
-    // ∂w = xᵀ gz: one product per row block, summed in block order.
-    let partial: Vec<Vec<f32>> = x[..n * i]
-        .par_chunks(PRODUCT_BLOCK_ROWS * i.max(1))
-        .zip(gz.par_chunks(PRODUCT_BLOCK_ROWS * o.max(1)))
-        .with_max_len(1)
-        .map(|(xb, gb)| {
-            let rows = gb.len() / o.max(1);
-            let mut p = vec![0.0f32; i * o];
-            matmul(&mut p, MatRef::new(xb, rows, i).t(), MatRef::new(gb, rows, o), false);
-            p
-        })
-        .collect();
-    let mut gw = vec![0.0f32; i * o];
-    for p in &partial {
-        for (a, v) in gw.iter_mut().zip(p) {
-            *a += v;
-        }
-    }
     let mut gx = zeroed(n * i);
-    matmul_rows(&mut gx, &gz, o, MatRef::new(w, i, o).t(), false);
-    (gx, gw, column_sums(&gz, o))
-}
-
-/// Σ over rows of a row-major `[n, o]` matrix, in fixed row blocks summed in order.
-fn column_sums(m: &[f32], o: usize) -> Vec<f32> {
-    if o == 0 {
-        return Vec::new();
-    }
-    let partial: Vec<Vec<f32>> = m
-        .par_chunks(BIAS_BLOCK_ROWS * o)
-        .map(|block| {
-            let mut s = vec![0.0f32; o];
-            for row in block.chunks_exact(o) {
-                for (a, v) in s.iter_mut().zip(row) {
+    let blocks = n.div_ceil(BIAS_BLOCK_ROWS);
+    let gx_blocks: Vec<&mut [f32]> = if i > 0 {
+        gx.chunks_mut(BIAS_BLOCK_ROWS * i).collect()
+    } else {
+        (0..blocks).map(|_| <&mut [f32]>::default()).collect()
+    };
+    let wt = MatRef::new(w, i, o).t();
+    let sums: Vec<BlockSums> = gx_blocks
+        .into_par_iter()
+        .enumerate()
+        .with_max_len(1)
+        .map(|(block, gx_block)| {
+            let first = block * BIAS_BLOCK_ROWS;
+            let rows = (n - first).min(BIAS_BLOCK_ROWS);
+            let gy_block = &gy[first * o..(first + rows) * o];
+            let gz: Cow<[f32]> = if relu {
+                let y_block = &y[first * o..(first + rows) * o];
+                Cow::Owned(gy_block.iter().zip(y_block).map(|(&g, &v)| if v > 0.0 { g } else { 0.0 }).collect())
+            } else {
+                Cow::Borrowed(gy_block)
+            };
+            let mut bias = vec![0.0f32; o];
+            for row in gz.chunks_exact(o.max(1)) {
+                for (a, v) in bias.iter_mut().zip(row) {
                     *a += v;
                 }
             }
-            s
+            let mut weight = Vec::new();
+            for sub in (0..rows).step_by(PRODUCT_BLOCK_ROWS) {
+                let sub_rows = (rows - sub).min(PRODUCT_BLOCK_ROWS);
+                let gb = &gz[sub * o..(sub + sub_rows) * o];
+                let xb = &x[(first + sub) * i..(first + sub + sub_rows) * i];
+                let mut p = vec![0.0f32; i * o];
+                matmul(&mut p, MatRef::new(xb, sub_rows, i).t(), MatRef::new(gb, sub_rows, o), false);
+                weight.push(p);
+                if i > 0 && o > 0 {
+                    matmul(&mut gx_block[sub * i..(sub + sub_rows) * i], MatRef::new(gb, sub_rows, o), wt, false);
+                }
+            }
+            BlockSums { weight, bias }
         })
         .collect();
-    let mut sums = vec![0.0f32; o];
-    for p in &partial {
-        for (a, v) in sums.iter_mut().zip(p) {
+    let mut gw = vec![0.0f32; i * o];
+    let mut gb = vec![0.0f32; o];
+    for block in &sums {
+        for p in &block.weight {
+            for (a, v) in gw.iter_mut().zip(p) {
+                *a += v;
+            }
+        }
+        for (a, v) in gb.iter_mut().zip(&block.bias) {
             *a += v;
         }
     }
-    sums
+    (gx, gw, gb)
 }
 
 /// `x w + b` and its gradients in f64 with plain loops: the kernels' test oracle.
