@@ -1,4 +1,4 @@
-//! AVX2 versions of the hash encoding's level kernels: eight points per block, one vector lane
+//! AVX2 versions of the hash encoding's forward kernels: eight points per block, one vector lane
 //! per point, the table reads as gathers. Every value is computed with the same operations in
 //! the same order as the scalar kernels of [`super::cpu`] (no fused multiply-adds), so the
 //! results are the same bit for bit (`tests::avx2_kernels_equal_the_scalar_kernels`); points
@@ -9,7 +9,7 @@
 
 use std::arch::x86_64::*;
 
-use super::cpu::{Level, encode_level_jacobian_scalar, encode_level_scalar, scatter_level_scalar};
+use super::cpu::{Level, encode_level_jacobian_scalar, encode_level_scalar};
 use crate::method::model::hash_grid::{HASH_P1, HASH_P2};
 
 /// Points per block.
@@ -106,11 +106,6 @@ fn lanes(v: __m256) -> [f32; LANES] {
     unsafe { std::mem::transmute::<__m256, [f32; LANES]>(v) }
 }
 
-fn lanes_i(v: __m256i) -> [i32; LANES] {
-    // SAFETY: as `lanes`.
-    unsafe { std::mem::transmute::<__m256i, [i32; LANES]>(v) }
-}
-
 /// `cpu::encode_level`, eight points at a time.
 #[target_feature(enable = "avx2,fma")]
 pub(super) fn encode_level(level: &Level, mask: i64, u: &[f32], tables: &[f32], stride: usize, f_n: usize) -> Vec<f32> {
@@ -180,38 +175,6 @@ pub(super) fn encode_level_jacobian(
     o
 }
 
-/// `cpu::scatter_level`: the corners of eight points at a time, the additions point by point
-/// in the scalar kernel's order (point, corner, feature).
-#[target_feature(enable = "avx2,fma")]
-pub(super) fn scatter_level(
-    level: &Level,
-    l: usize,
-    mask: i64,
-    u: &[f32],
-    grad: &[f32],
-    l_n: usize,
-    features: &mut [&mut [f32]],
-) {
-    let n = u.len() / 3;
-    let f_n = features.len();
-    let whole = n / LANES * LANES;
-    for_each_block(level, mask, &u[..3 * whole], |block_index, b| {
-        let rows = b.rows.map(lanes_i);
-        let w = weights(&b.a).map(lanes);
-        for lane in 0..LANES {
-            let i = block_index * LANES + lane;
-            let g = &grad[(i * l_n + l) * f_n..(i * l_n + l + 1) * f_n];
-            for k in 0..8 {
-                let row = rows[k][lane] as usize - level.base;
-                for (slice, gf) in features.iter_mut().zip(g) {
-                    slice[row] += w[k][lane] * gf;
-                }
-            }
-        }
-    });
-    scatter_level_scalar(level, l, mask, &u[3 * whole..], &grad[whole * l_n * f_n..], l_n, features);
-}
-
 #[cfg(test)]
 mod tests {
     use super::super::cpu::{Level, levels};
@@ -239,22 +202,15 @@ mod tests {
         let n = 1003;
         let u: Vec<f32> = (0..3 * n).map(|_| rng.random_range(-0.05f32..1.05)).collect();
         let tables: Vec<f32> = (0..c.features * c.rows()).map(|_| rng.random_range(-1.0f32..1.0)).collect();
-        let grad: Vec<f32> = (0..n * c.levels * c.features).map(|_| rng.random_range(-1.0f32..1.0)).collect();
         let (stride, f_n, mask) = (c.rows(), c.features, c.table_size() - 1);
         for (l, level) in lv.iter().enumerate() {
-            // SAFETY (all three calls): the CPU has AVX2 and FMA (checked above).
+            // SAFETY (both calls): the CPU has AVX2 and FMA (checked above).
             let fast = unsafe { encode_level(level, mask, &u, &tables, stride, f_n) };
             assert_eq!(fast, encode_level_scalar(level, mask, &u, &tables, stride, f_n), "encode, level {l}");
             let (mut jac_fast, mut jac_slow) = (vec![0.0; n * f_n * 3], vec![0.0; n * f_n * 3]);
             let fast = unsafe { encode_level_jacobian(level, mask, &u, &tables, stride, f_n, &mut jac_fast) };
             let slow = encode_level_jacobian_scalar(level, mask, &u, &tables, stride, f_n, &mut jac_slow);
             assert_eq!((fast, jac_fast), (slow, jac_slow), "encode with Jacobian, level {l}");
-            let (mut fast, mut slow) = (vec![vec![0.0f32; level.rows]; f_n], vec![vec![0.0f32; level.rows]; f_n]);
-            let mut fast_slices: Vec<&mut [f32]> = fast.iter_mut().map(|v| v.as_mut_slice()).collect();
-            unsafe { scatter_level(level, l, mask, &u, &grad, c.levels, &mut fast_slices) };
-            let mut slow_slices: Vec<&mut [f32]> = slow.iter_mut().map(|v| v.as_mut_slice()).collect();
-            scatter_level_scalar(level, l, mask, &u, &grad, c.levels, &mut slow_slices);
-            assert_eq!(fast, slow, "table gradient, level {l}");
         }
     }
 }
