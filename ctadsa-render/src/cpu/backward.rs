@@ -271,6 +271,7 @@ pub fn render_backward(g: &HostGaussians, views: &[ViewParams], k_sigma: f32, gr
         .zip(out.densities.par_chunks_mut(CHUNK))
         .zip(out.screen_stats.par_chunks_mut(2 * CHUNK))
         .enumerate()
+        .with_max_len(4)
         .for_each(|(c, ((((means, scales), rotations), densities), stats))| {
             let mut per = [GaussianGrad::default(); CHUNK];
             let per = &mut per[..densities.len()];
