@@ -318,12 +318,20 @@ fn backward_level(
 /// the backward's table reads cost as much as its scatter, and the forward has the corner values
 /// at hand already.
 pub fn encode_with_jacobian(c: &HashGridConfig, u: &[f32], tables: &[f32]) -> (Vec<f32>, Vec<f32>) {
+    let mut jacobian = zeroed(c.levels * (u.len() / 3) * c.features * 3);
+    let out = encode_with_jacobian_into(c, u, tables, &mut jacobian);
+    (out, jacobian)
+}
+
+/// [`encode_with_jacobian`] writing the Jacobian into `jacobian` (`[L · N·F·3]`), every element
+/// of which it overwrites (so a reused buffer need not be cleared first); returns the encoding.
+pub fn encode_with_jacobian_into(c: &HashGridConfig, u: &[f32], tables: &[f32], jacobian: &mut [f32]) -> Vec<f32> {
     let lv = levels(c);
     let (l_n, f_n) = (c.levels, c.features);
     let stride = c.rows();
     let mask = c.table_size() - 1;
     let n = u.len() / 3;
-    let mut jacobian = zeroed(l_n * n * f_n * 3);
+    assert_eq!(jacobian.len(), l_n * n * f_n * 3, "Jacobian buffer of the wrong length");
     // Per level, [chunk][chunk points · F]: a level's points in chunks, so that the thread that
     // finishes its levels first takes over part of another's instead of waiting for it.
     let by_level: Vec<Vec<Vec<f32>>> = jacobian
@@ -343,7 +351,7 @@ pub fn encode_with_jacobian(c: &HashGridConfig, u: &[f32], tables: &[f32]) -> (V
             o[l * f_n..(l + 1) * f_n].copy_from_slice(&level[chunk][at * f_n..(at + 1) * f_n]);
         }
     });
-    (out, jacobian)
+    out
 }
 
 /// Points per task of [`encode_with_jacobian`] (a multiple of the AVX2 kernels' block of 8).
@@ -617,6 +625,20 @@ mod tests {
             scatter_level_scalar(level, l, mask, &u, &grad, c.levels, &mut slices);
             assert_eq!(fast, slow, "level {l}");
         }
+    }
+
+    /// The forward overwrites every element of a reused Jacobian buffer (one full of NaN here).
+    #[test]
+    fn jacobian_into_a_used_buffer_overwrites_all_of_it() {
+        let c = HashGridConfig { levels: 6, features: 2, log2_table: 10, base_resolution: 4.0, growth: 1.8 };
+        let mut rng = ChaCha8Rng::seed_from_u64(13);
+        let n = POINT_CHUNK + 1001;
+        let u: Vec<f32> = (0..3 * n).map(|_| rng.random_range(-0.05f32..1.05)).collect();
+        let tables: Vec<f32> = (0..c.features * c.rows()).map(|_| rng.random_range(-1.0f32..1.0)).collect();
+        let (out, jacobian) = encode_with_jacobian(&c, &u, &tables);
+        let mut used = vec![f32::NAN; jacobian.len()];
+        assert_eq!(encode_with_jacobian_into(&c, &u, &tables, &mut used), out);
+        assert_eq!(used, jacobian);
     }
 
     #[test]

@@ -106,11 +106,14 @@ impl HashEncodeBackend for NdArray {
     ) -> (FloatTensor<Self>, FloatTensor<Self>) {
         let device = u.device();
         let n = u.shape()[0];
-        let (out, jacobian) = with_host(&u, |u| with_host(&tables, |t| cpu::encode_with_jacobian(&config, u, t)));
-        (
-            Self::float_from_data(TensorData::new(out, [n, config.output_dim()]), &device),
-            Self::float_from_data(TensorData::new(jacobian, [config.levels, n * config.features * 3]), &device),
-        )
+        // Every element is overwritten, so a reused buffer is not cleared.
+        let (mut jacobian, _) = JACOBIAN_POOL.take(&[config.levels, n * config.features * 3]);
+        let out = {
+            let slice = jacobian.as_slice_mut().expect("a fresh or pooled buffer is contiguous");
+            with_host(&u, |u| with_host(&tables, |t| cpu::encode_with_jacobian_into(&config, u, t, slice)))
+        };
+        JACOBIAN_POOL.keep(&jacobian);
+        (Self::float_from_data(TensorData::new(out, [n, config.output_dim()]), &device), NdArrayTensor::from(jacobian))
     }
 
     fn hash_encode_backward_saved(
@@ -140,31 +143,55 @@ fn pooled_grads(
     device: &burn::backend::ndarray::NdArrayDevice,
 ) -> HashGrads<NdArray> {
     let n = gu.len() / 3;
-    if let Ok(mut pool) = TABLE_GRAD_POOL.lock() {
-        *pool = Some(grad_t.clone());
-    }
+    TABLE_GRAD_POOL.keep(&grad_t);
     HashGrads { u: NdArray::float_from_data(TensorData::new(gu, [n, 3]), device), tables: NdArrayTensor::from(grad_t) }
 }
 
-/// The table gradient's buffer, kept between steps: at paper scale it is 67 MB, and a fresh
-/// allocation every step is unmapped on drop and faulted back in page by page on the next
-/// (≈ 15 % of the step). The pool keeps one buffer; it is reused only once burn has dropped its
-/// share (the optimizer consumed the gradient), so no tensor burn still holds is overwritten.
-static TABLE_GRAD_POOL: Mutex<Option<ArcArray<f32, IxDyn>>> = Mutex::new(None);
+/// One large buffer kept between steps: at paper scale the table gradient is 43 MB and the
+/// Jacobian 35–48 MB, and a fresh allocation every step is unmapped on drop and faulted back in
+/// page by page (and cleared) on the next (≈ 15 % of the step for the table gradient). A buffer
+/// is reused only once burn has dropped its share (the optimizer consumed the gradient, the
+/// backward the Jacobian), so no tensor burn still holds is overwritten.
+struct BufferPool(Mutex<Option<ArcArray<f32, IxDyn>>>);
 
-/// A zeroed buffer of `shape`: the pooled one when nobody else holds it, else a new one.
+impl BufferPool {
+    const fn new() -> Self {
+        Self(Mutex::new(None))
+    }
+
+    /// A buffer of `dims` and whether it holds old values: the pooled one when it has that
+    /// shape and nobody else holds it, else a new zeroed one.
+    fn take(&self, dims: &[usize]) -> (ArcArray<f32, IxDyn>, bool) {
+        let pooled = self.0.lock().ok().and_then(|mut pool| pool.take());
+        if let Some(mut buffer) = pooled
+            && buffer.shape() == dims
+            && buffer.is_unique()
+            && buffer.as_slice_mut().is_some()
+        {
+            return (buffer, true);
+        }
+        (ArcArray::zeros(IxDyn(dims)), false)
+    }
+
+    /// Keeps a share of `buffer` for a later [`take`](Self::take).
+    fn keep(&self, buffer: &ArcArray<f32, IxDyn>) {
+        if let Ok(mut pool) = self.0.lock() {
+            *pool = Some(buffer.clone());
+        }
+    }
+}
+
+static TABLE_GRAD_POOL: BufferPool = BufferPool::new();
+static JACOBIAN_POOL: BufferPool = BufferPool::new();
+
+/// A zeroed buffer of `shape` for the table gradient (the pooled one, cleared, when free).
 fn table_grad_buffer(shape: &burn::tensor::Shape) -> ArcArray<f32, IxDyn> {
     let dims: Vec<usize> = shape.iter().copied().collect();
-    let pooled = TABLE_GRAD_POOL.lock().ok().and_then(|mut pool| pool.take());
-    if let Some(mut buffer) = pooled
-        && buffer.shape() == dims.as_slice()
-        && buffer.is_unique()
-        && let Some(values) = buffer.as_slice_mut()
-    {
+    let (mut buffer, used) = TABLE_GRAD_POOL.take(&dims);
+    if used && let Some(values) = buffer.as_slice_mut() {
         values.par_chunks_mut(1 << 16).for_each(|c| c.fill(0.0));
-        return buffer;
     }
-    ArcArray::zeros(IxDyn(&dims))
+    buffer
 }
 
 #[cfg(feature = "wgpu")]
