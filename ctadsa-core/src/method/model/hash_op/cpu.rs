@@ -500,9 +500,10 @@ fn scatter_level(level: &Level, l: usize, mask: i64, u: &[f32], grad: &[f32], l_
 /// [`scatter_level_scalar`] for two features per level (every shipped configuration), with both
 /// features' slices at hand in the corner loop: the same additions in the same order. It is the
 /// fastest of the variants measured (126k Gaussian centres of a BraVa paper run, table 2¹⁹ × 16,
-/// 2 threads, scatter and position gradient: 32–34 ms; the generic loop over the feature slices
-/// ≈ 40 ms on one thread's share, an AVX2 version that computed eight points' corners at a time
-/// and then made their additions 45–49 ms; prefetching the rows for writing gained nothing).
+/// scatter and position gradient: 32–34 ms on 2 threads against 44–49 for an AVX2 version that
+/// computed eight points' corners at a time and then made their additions; on one thread 64–67
+/// ms against 78–83 for the generic loop over the feature slices and 90–99 for the AVX2 version;
+/// prefetching the rows for writing gained nothing).
 #[allow(clippy::too_many_arguments)]
 #[multiversion::multiversion(targets("x86_64+sse4.1"))]
 fn scatter_level_two_features(
