@@ -109,6 +109,7 @@ fn wgpu_kernels_match_cpu() {
         return;
     };
     eprintln!("wgpu adapter: {name}");
+    use ctadsa_render::gpu::atomics::{F32Add, force_f32_add};
     // One set of tables for both runs (random tables differ per call).
     let table_data = grid(&Device::ndarray()).tables.val().into_data();
     let run = |device: Device| {
@@ -128,10 +129,15 @@ fn wgpu_kernels_match_cpu() {
         (host_vec(out), host_vec(u.grad(&grads).unwrap()), host_vec(g.tables.val().grad(&grads).unwrap()))
     };
     let a = run(Device::ndarray());
-    let b = run(Device::wgpu(burn::tensor::DeviceKind::DefaultDevice));
-    for (name, x, y) in [("forward", &a.0, &b.0), ("positions", &a.1, &b.1), ("tables", &a.2, &b.2)] {
-        let worst = x.iter().zip(y).map(|(p, q)| (p - q).abs()).fold(0.0f32, f32::max);
-        let scale = x.iter().map(|q| q.abs()).fold(0.0f32, f32::max).max(1.0);
-        assert!(worst <= 1e-4 * scale, "{name}: wgpu differs by {worst} (scale {scale})");
+    // The table gradient is added atomically: with the device's f32 add and with the loop.
+    for mode in [F32Add::CompareExchange, F32Add::Native] {
+        force_f32_add(Some(mode));
+        let b = run(Device::wgpu(burn::tensor::DeviceKind::DefaultDevice));
+        for (name, x, y) in [("forward", &a.0, &b.0), ("positions", &a.1, &b.1), ("tables", &a.2, &b.2)] {
+            let worst = x.iter().zip(y).map(|(p, q)| (p - q).abs()).fold(0.0f32, f32::max);
+            let scale = x.iter().map(|q| q.abs()).fold(0.0f32, f32::max).max(1.0);
+            assert!(worst <= 1e-4 * scale, "{name} ({mode:?}): wgpu differs by {worst} (scale {scale})");
+        }
     }
+    force_f32_add(None);
 }

@@ -1,5 +1,6 @@
 //! The wgpu (CubeCL) kernels against the CPU kernels: forward, all gradients, the densification
-//! statistic and voxelisation agree within 1e-4 relative; edge cases stay finite.
+//! statistic and voxelisation agree within 1e-4 relative, with the device's f32 atomic add and
+//! with the compare-and-swap loop; edge cases stay finite.
 //!
 //! Needs a wgpu adapter (a GPU or Mesa lavapipe). Without one every test prints why and returns;
 //! with `CTADSA_REQUIRE_WGPU=1` (CI) a missing adapter is a failure.
@@ -10,6 +11,7 @@ mod common;
 
 use burn::tensor::{Device, DeviceKind, Tensor, TensorData};
 use common::*;
+use ctadsa_render::gpu::atomics::{F32Add, force_f32_add};
 use ctadsa_render::reference::RefGaussian;
 use ctadsa_render::{Gaussians, RenderSettings, ViewSet, VoxelGrid, render_with_stats, voxelize};
 
@@ -28,6 +30,17 @@ fn gpu() -> Option<Device> {
             None
         }
     }
+}
+
+/// Runs `check` once per way of adding f32 atomically (the native add is used only where the
+/// device has it: the line printed says so), then restores the default.
+fn for_each_f32_add(check: impl Fn(F32Add)) {
+    for mode in [F32Add::CompareExchange, F32Add::Native] {
+        force_f32_add(Some(mode));
+        println!("{mode:?}");
+        check(mode);
+    }
+    force_f32_add(None);
 }
 
 struct Outputs {
@@ -71,18 +84,20 @@ fn forward_and_gradients_match_the_cpu() {
         view_set(&[small_geometry(-90.0, 64, 0.8), small_geometry(0.0, 64, 0.8), small_geometry(-45.0, 64, 0.8)]);
     let weights: Vec<f32> = (0..3 * 64 * 64).map(|_| rng.uniform(-1.0, 1.0) as f32).collect();
     let cpu = run(&gs, &views, &Device::ndarray(), &weights);
-    let wgpu = run(&gs, &views, &gpu, &weights);
-    let err = rel_l2(&wgpu.image, &cpu.image);
-    println!("image: relative L2 {err:.2e}");
-    assert!(err <= 1e-4, "forward differs: {err:e}");
-    for (name, (a, b)) in ["means", "scales", "rotations", "densities", "screen stats"]
-        .iter()
-        .zip(wgpu.grads.iter().zip(cpu.grads.iter()))
-    {
-        let err = rel_l2(a, b);
-        println!("{name}: relative L2 {err:.2e}");
-        assert!(err <= 1e-4, "{name} differ: {err:e}");
-    }
+    for_each_f32_add(|mode| {
+        let wgpu = run(&gs, &views, &gpu, &weights);
+        let err = rel_l2(&wgpu.image, &cpu.image);
+        println!("image: relative L2 {err:.2e}");
+        assert!(err <= 1e-4, "forward ({mode:?}) differs: {err:e}");
+        for (name, (a, b)) in ["means", "scales", "rotations", "densities", "screen stats"]
+            .iter()
+            .zip(wgpu.grads.iter().zip(cpu.grads.iter()))
+        {
+            let err = rel_l2(a, b);
+            println!("{name}: relative L2 {err:.2e}");
+            assert!(err <= 1e-4, "{name} ({mode:?}) differ: {err:e}");
+        }
+    });
 }
 
 #[test]
@@ -92,12 +107,15 @@ fn voxelize_matches_the_cpu() {
     let gs = random_gaussians(&mut rng, 40, 6.0, (0.5, 2.0));
     let grid = VoxelGrid::from_bounds([-9.0, -8.0, -7.0], [9.0, 8.0, 7.0], [24, 20, 18]).unwrap();
     let s = RenderSettings::default();
-    let a: Vec<f64> = to_vec(voxelize(&to_tensors(&gs, &gpu), &grid, &s).unwrap()).into_iter().map(f64::from).collect();
     let b: Vec<f64> =
         to_vec(voxelize(&to_tensors(&gs, &Device::ndarray()), &grid, &s).unwrap()).into_iter().map(f64::from).collect();
-    let err = rel_l2(&a, &b);
-    println!("volume: relative L2 {err:.2e}");
-    assert!(err <= 1e-5, "{err:e}");
+    for_each_f32_add(|mode| {
+        let a: Vec<f64> =
+            to_vec(voxelize(&to_tensors(&gs, &gpu), &grid, &s).unwrap()).into_iter().map(f64::from).collect();
+        let err = rel_l2(&a, &b);
+        println!("volume: relative L2 {err:.2e}");
+        assert!(err <= 1e-5, "{mode:?}: {err:e}");
+    });
 }
 
 #[test]

@@ -407,20 +407,3 @@ pub fn unit_value(pr: &Proj, re: &RowEval, dx: f32) -> (f32, f32) {
     let sees = pr.bounded == 0u32 || quad <= pr.k2 * alpha;
     (select(sees, value, 0.0f32), inv_a)
 }
-
-/// Adds `value` to `target[index]` with a compare-and-swap loop on the f32 bits (works on every
-/// device with 32-bit integer atomics).
-#[cube]
-pub fn atomic_add_f32(ptr: &mut Atomic<u32>, value: f32) {
-    if value != 0.0 {
-        let mut v = ptr.load();
-        loop {
-            let prev = v;
-            let new = (f32::from_bits(v) + value).to_bits();
-            v = ptr.compare_exchange_weak(v, new);
-            if prev == v {
-                break;
-            }
-        }
-    }
-}

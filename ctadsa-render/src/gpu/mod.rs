@@ -1,6 +1,8 @@
 //! The renderer on CubeCL (`CubeBackend`, used by burn's wgpu device): kernel launches.
-//! Kernels: [`forward`], [`backward`], [`voxelize`]; device functions in [`math`].
+//! Kernels: [`forward`], [`backward`], [`voxelize`]; device functions in [`math`] and
+//! [`atomics`].
 
+pub mod atomics;
 pub mod backward;
 pub mod forward;
 pub mod math;
@@ -66,6 +68,7 @@ impl XrayBackend for CubeBackend {
         }
         let views = packed_views(&setup, &means);
         let (count, dim) = launch_dims(&means, units);
+        let acc = atomics::Accumulator::new(&image);
         forward::render_forward_kernel::launch(
             &means.client,
             count,
@@ -75,10 +78,12 @@ impl XrayBackend for CubeBackend {
             rotations.into_tensor_arg(),
             densities.into_tensor_arg(),
             views.into_tensor_arg(),
-            image.clone().into_tensor_arg(),
+            acc.as_f32.into_tensor_arg(),
+            acc.as_u32.into_tensor_arg(),
             n as u32,
             v as u32,
             setup.k_sigma,
+            acc.native,
         );
         image
     }
@@ -151,6 +156,7 @@ impl XrayBackend for CubeBackend {
         g.extend(grid.dims.map(|d| d as f32));
         let grid_t = upload(g, vec![9], &means);
         let (count, dim) = launch_dims(&means, n);
+        let acc = atomics::Accumulator::new(&volume);
         voxelize::voxelize_kernel::launch(
             &means.client,
             count,
@@ -160,9 +166,11 @@ impl XrayBackend for CubeBackend {
             rotations.into_tensor_arg(),
             densities.into_tensor_arg(),
             grid_t.into_tensor_arg(),
-            volume.clone().into_tensor_arg(),
+            acc.as_f32.into_tensor_arg(),
+            acc.as_u32.into_tensor_arg(),
             n as u32,
             k_sigma,
+            acc.native,
         );
         volume
     }

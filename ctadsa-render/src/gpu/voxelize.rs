@@ -1,10 +1,12 @@
 //! CubeCL voxelisation kernel: one unit per Gaussian walks the voxels of its k-σ box and adds
-//! the density at the voxel centres inside the ellipsoid (atomic adds).
+//! the density at the voxel centres inside the ellipsoid (atomic adds; the volume is bound as
+//! both of its typed arguments, see [`super::atomics`]).
 
 use burn_cubecl::cubecl;
 use cubecl::prelude::*;
 
-use super::math::{atomic_add_f32, load_params, quat_to_mat, sandwich_diag};
+use super::atomics::add_f32;
+use super::math::{load_params, quat_to_mat, sandwich_diag};
 
 /// `grid` = `[origin (3), spacing (3), dims (3)]` as f32.
 #[cube(launch)]
@@ -14,9 +16,11 @@ pub fn voxelize_kernel(
     rotations: &Tensor<f32>,
     densities: &Tensor<f32>,
     grid: &Tensor<f32>,
-    volume: &mut Tensor<Atomic<u32>>,
+    volume_f32: &mut Tensor<Atomic<f32>>,
+    volume_u32: &mut Tensor<Atomic<u32>>,
     n: u32,
     k_sigma: f32,
+    #[comptime] native: bool,
 ) {
     let i = ABSOLUTE_POS;
     if i >= n as usize {
@@ -58,7 +62,13 @@ pub fn voxelize_kernel(
                             + q.zz * dz * dz
                             + 2.0 * (q.xy * dx * dy + q.xz * dx * dz + q.yz * dy * dz);
                         if m <= k2 {
-                            atomic_add_f32(&mut volume[base + iz as usize], p.density * f32::exp(m * -0.5f32));
+                            add_f32(
+                                volume_f32,
+                                volume_u32,
+                                base + iz as usize,
+                                p.density * f32::exp(m * -0.5f32),
+                                native,
+                            );
                         }
                     }
                 }

@@ -1,6 +1,7 @@
 //! CubeCL kernels of the hash encoding, one unit per (point, level), mirroring `cpu.rs`.
 //! The backward writes per-level position gradients (summed afterwards) and adds the table
-//! gradients with a compare-and-swap float add.
+//! gradients atomically: with the device's f32 add where it has one, else a compare-and-swap
+//! loop (`ctadsa_render::gpu::atomics`).
 
 use burn::backend::ops::FloatTensorOps;
 use burn::backend::{FloatDType, TensorMetadata};
@@ -10,7 +11,7 @@ use burn_cubecl::kernel::into_contiguous;
 use burn_cubecl::tensor::CubeTensor;
 use burn_cubecl::{CubeBackend, cubecl};
 
-use ctadsa_render::gpu::math::atomic_add_f32;
+use ctadsa_render::gpu::atomics::{Accumulator, add_f32};
 
 use crate::method::model::hash_grid::{HASH_P1, HASH_P2, HashGridConfig};
 
@@ -91,12 +92,14 @@ fn hash_backward_kernel(
     meta: &Tensor<f32>,
     grad: &Tensor<f32>,
     grad_u_levels: &mut Tensor<f32>,
-    grad_tables: &mut Tensor<Atomic<u32>>,
+    grad_tables_f32: &mut Tensor<Atomic<f32>>,
+    grad_tables_u32: &mut Tensor<Atomic<u32>>,
     n: u32,
     levels: u32,
     features: u32,
     stride: u32,
     mask: u32,
+    #[comptime] native: bool,
 ) {
     let id = ABSOLUTE_POS;
     if id >= (n * levels) as usize {
@@ -115,7 +118,7 @@ fn hash_backward_kernel(
             gx += dx * g * t;
             gy += dy * g * t;
             gz += dz * g * t;
-            atomic_add_f32(&mut grad_tables[(f * stride + row) as usize], w * g);
+            add_f32(grad_tables_f32, grad_tables_u32, (f * stride + row) as usize, w * g, native);
         }
     }
     grad_u_levels[3 * id] = gx;
@@ -184,6 +187,7 @@ pub fn encode_backward(
     if n > 0 {
         let meta = meta(c, &u);
         let (count, dim) = dims(c, n, &u);
+        let acc = Accumulator::new(&grad_tables);
         hash_backward_kernel::launch(
             &u.client,
             count,
@@ -193,12 +197,14 @@ pub fn encode_backward(
             meta.into_tensor_arg(),
             grad.into_tensor_arg(),
             per_level.clone().into_tensor_arg(),
-            grad_tables.clone().into_tensor_arg(),
+            acc.as_f32.into_tensor_arg(),
+            acc.as_u32.into_tensor_arg(),
             n as u32,
             c.levels as u32,
             c.features as u32,
             c.rows() as u32,
             (c.table_size() - 1) as u32,
+            acc.native,
         );
     }
     let grad_u = CubeBackend::float_reshape(CubeBackend::float_sum_dim(per_level, 1), Shape::from(vec![n, 3]));
