@@ -1,19 +1,21 @@
 //! Adam as one fused pass per parameter: the same update rule as burn's `Adam` (coupled L2
-//! weight decay, bias corrections in burn's `ε·√(1 − β₂ᵗ)` form), the same state record
-//! (`AdamState`, so checkpoints and densification's state edits are unchanged), but each step
+//! weight decay, bias corrections in burn's `ε·√(1 − β₂ᵗ)` form), the same state record as
+//! burn's `AdamState` ([`FusedAdamState`], so checkpoints and densification's state edits are
+//! unchanged), but each step
 //! reads the parameter, gradient and moments once and writes them once instead of making about
 //! fifteen full-size tensor passes. burn's `Adam` stays the reference (`optim.adam = "burn"`)
 //! and the test oracle.
 
 mod kernel;
+mod state;
 pub mod state_edit;
 
 use burn::backend::Dispatch;
-use burn::optim::{AdamState, AdaptiveMomentumState};
 use burn::optim::{LearningRate, Optimizer};
 use burn::tensor::{Device, Tensor};
 
 pub use kernel::{AdamCoefficients, FusedAdamBackend};
+pub use state::FusedAdamState;
 
 /// Adam with one fused pass per parameter tensor (see the module documentation).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -40,7 +42,7 @@ impl FusedAdam {
 }
 
 impl Optimizer for FusedAdam {
-    type State<const D: usize> = AdamState<D>;
+    type State<const D: usize> = FusedAdamState<D>;
 
     fn step<const D: usize>(
         &self,
@@ -51,7 +53,7 @@ impl Optimizer for FusedAdam {
     ) -> (Tensor<D>, Option<Self::State<D>>) {
         // No state yet: zero moments give burn's first-step values exactly (0·β + x = x).
         let (time, moment_1, moment_2) = match state {
-            Some(s) => (s.momentum.time + 1, s.momentum.moment_1, s.momentum.moment_2),
+            Some(s) => (s.time + 1, s.moment_1, s.moment_2),
             None => (1, grad.zeros_like(), grad.zeros_like()),
         };
         let coefficients = AdamCoefficients {
@@ -69,14 +71,20 @@ impl Optimizer for FusedAdam {
             moment_2.into_dispatch(),
             coefficients,
         );
-        let momentum =
-            AdaptiveMomentumState::new(time, Tensor::from_dispatch(out.moment_1), Tensor::from_dispatch(out.moment_2));
-        (Tensor::from_dispatch(out.param), Some(AdamState::new(momentum)))
+        let state = FusedAdamState {
+            time,
+            moment_1: Tensor::from_dispatch(out.moment_1),
+            moment_2: Tensor::from_dispatch(out.moment_2),
+        };
+        (Tensor::from_dispatch(out.param), Some(state))
     }
 
-    fn to_device<const D: usize>(mut state: Self::State<D>, device: &Device) -> Self::State<D> {
-        state.momentum = state.momentum.to_device(device);
-        state
+    fn to_device<const D: usize>(state: Self::State<D>, device: &Device) -> Self::State<D> {
+        FusedAdamState {
+            time: state.time,
+            moment_1: state.moment_1.to_device(device),
+            moment_2: state.moment_2.to_device(device),
+        }
     }
 }
 

@@ -6,7 +6,7 @@ use burn::tensor::{Device, Tensor, TensorData};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use super::FusedAdam;
+use super::{FusedAdam, FusedAdamState};
 use crate::method::model::host_vec;
 
 fn random(rng: &mut ChaCha8Rng, n: usize, scale: f32) -> Vec<f32> {
@@ -41,7 +41,7 @@ fn compare(weight_decay: Option<f32>, epsilon: f32) {
         let (p, s) = fused.step(lr, p_fused, grad, s_fused);
         (p_fused, s_fused) = (p, s);
     }
-    let (a, b) = (s_ref.unwrap().momentum, s_fused.unwrap().momentum);
+    let (a, b) = (s_ref.unwrap().momentum, s_fused.unwrap());
     assert_eq!(a.time, b.time);
     let d_param = worst_rel(&host_vec(p_ref), &host_vec(p_fused));
     let d_m1 = worst_rel(&host_vec(a.moment_1), &host_vec(b.moment_1));
@@ -60,16 +60,46 @@ fn fused_adam_follows_burns_adam_with_coupled_weight_decay() {
     compare(Some(5e-5), 1e-8);
 }
 
+/// The fused state's record is burn's `AdamState`'s leaf for leaf (names, shapes, bits), and
+/// each type rebuilds from the other's record: a checkpoint written with one loads into the other.
 #[test]
 fn fused_adam_state_is_burns_record() {
-    // The state type is burn's AdamState: a checkpoint written with one loads into the other.
+    use burn::optim::{RecordState, StateSink, StateSource};
     let device = Device::ndarray();
-    let p = Tensor::<1>::from_data(TensorData::new(vec![1.0f32, -2.0, 3.0], [3]), &device);
-    let g = Tensor::<1>::from_data(TensorData::new(vec![0.5f32, 0.25, -1.0], [3]), &device);
-    let (_, state) = FusedAdam::new(1e-8).step(0.1, p.clone(), g.clone(), None);
-    let (p_next, _) = AdamConfig::new().with_epsilon(1e-8).build().step(0.1, p.clone(), g.clone(), state.clone());
-    let (p_fused, _) = FusedAdam::new(1e-8).step(0.1, p, g, state);
-    assert_eq!(host_vec(p_next), host_vec(p_fused));
+    let p = Tensor::<2>::from_data(TensorData::new(vec![1.0f32, -2.0, 3.0, 0.5, -0.25, 8.0], [2, 3]), &device);
+    let g = Tensor::<2>::from_data(TensorData::new(vec![0.5f32, 0.25, -1.0, 1e-3, -3.0, 0.0], [2, 3]), &device);
+    let burns = AdamConfig::new().with_epsilon(1e-8).build();
+    let (p1, burn_state) = burns.step(0.1, p.clone(), g.clone(), None);
+    let (_, burn_state) = burns.step(0.1, p1, g.clone(), burn_state);
+    let (q1, fused_state) = FusedAdam::new(1e-8).step(0.1, p.clone(), g.clone(), None);
+    let (_, fused_state) = FusedAdam::new(1e-8).step(0.1, q1, g.clone(), fused_state);
+    let (burn_state, fused_state) = (burn_state.unwrap(), fused_state.unwrap());
+    let sink = |flatten: &dyn Fn(&mut StateSink)| {
+        let mut out = StateSink::default();
+        flatten(&mut out);
+        out
+    };
+    let (a, b) = (sink(&|o| burn_state.state_flatten("7", o)), sink(&|o| fused_state.state_flatten("7", o)));
+    assert_eq!(a.scalars, b.scalars);
+    let leaves =
+        |s: &StateSink| s.tensors.iter().map(|(name, d)| (name.clone(), d.shape().to_vec())).collect::<Vec<_>>();
+    assert_eq!(leaves(&a), leaves(&b));
+    for ((name, x), (_, y)) in a.tensors.iter().zip(&b.tensors) {
+        let (x, y) = (x.to_vec::<f32>().unwrap(), y.to_vec::<f32>().unwrap());
+        assert!(x.iter().zip(&y).all(|(u, v)| u.to_bits() == v.to_bits()), "{name}: {x:?} vs {y:?}");
+    }
+    let source = |s: StateSink| {
+        let mut src = StateSource::new(s.scalars.into_iter().collect());
+        for (name, data) in s.tensors {
+            src.insert_tensor(name, data);
+        }
+        src
+    };
+    let from_fused = burn::optim::AdamState::<2>::state_unflatten("7", &mut source(b), &device).unwrap();
+    let from_burn = FusedAdamState::<2>::state_unflatten("7", &mut source(a), &device).unwrap();
+    assert_eq!((from_fused.momentum.time, from_burn.time), (2, 2));
+    assert_eq!(host_vec(from_fused.momentum.moment_2), host_vec(fused_state.moment_2));
+    assert_eq!(host_vec(from_burn.moment_1), host_vec(burn_state.momentum.moment_1));
 }
 
 /// Terms below the smallest normal f32 are flushed to zero (no subnormal arithmetic): the update
