@@ -73,6 +73,9 @@ enum BenchWhat {
         /// Timed steps per row (after 2 warm-up steps).
         #[arg(long, default_value_t = 5)]
         steps: usize,
+        /// Backend of every row.
+        #[arg(long, value_enum, default_value = "ndarray")]
+        backend: BackendKind,
     },
     /// Our voxel projector against plastimatch's DRR on the same vessel volume.
     Projector {
@@ -502,6 +505,6 @@ pub fn run(args: BenchArgs) -> Result<()> {
         BenchWhat::Train { case, config, overrides, steps, backend } => {
             bench_train(case, config, &overrides, steps, backend)
         }
-        BenchWhat::TrainSuite { steps } => crate::bench_suite::train_suite(steps, args.threads),
+        BenchWhat::TrainSuite { steps, backend } => crate::bench_suite::train_suite(steps, args.threads, backend),
     }
 }

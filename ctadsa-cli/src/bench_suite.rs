@@ -8,6 +8,8 @@ use std::process::Command;
 use anyhow::{Context, Result, bail};
 use ctadsa_core::data::synth::{SynthConfig, synthesize};
 
+use crate::backend::BackendKind;
+
 /// The paper configuration, built in so that the suite runs from any folder.
 const PAPER_TOML: &str = include_str!("../../configs/paper.toml");
 
@@ -41,10 +43,23 @@ fn cpu_model() -> String {
         .unwrap_or_else(|| "unknown CPU".into())
 }
 
-fn bench_row(case: &Path, config: Option<&Path>, sets: &[&str], steps: usize, threads: usize) -> Result<String> {
+/// How one row runs: timed steps, rayon threads, backend.
+#[derive(Clone, Copy)]
+struct RowRun {
+    steps: usize,
+    threads: usize,
+    backend: BackendKind,
+}
+
+fn bench_row(case: &Path, config: Option<&Path>, sets: &[&str], run: RowRun) -> Result<String> {
     let exe = std::env::current_exe().context("cannot find the ctadsa binary")?;
     let mut cmd = Command::new(exe);
-    cmd.args(["bench", "--threads", &threads.to_string(), "train", "--steps", &steps.to_string()]);
+    let backend = match run.backend {
+        BackendKind::Ndarray => "ndarray",
+        BackendKind::Wgpu => "wgpu",
+    };
+    cmd.args(["bench", "--threads", &run.threads.to_string(), "train", "--steps", &run.steps.to_string()]);
+    cmd.args(["--backend", backend]);
     cmd.arg("--case").arg(case);
     if let Some(c) = config {
         cmd.arg("--config").arg(c);
@@ -59,7 +74,7 @@ fn bench_row(case: &Path, config: Option<&Path>, sets: &[&str], steps: usize, th
     Ok(String::from_utf8_lossy(&out.stdout).into_owned())
 }
 
-pub fn train_suite(steps: usize, threads: usize) -> Result<()> {
+pub fn train_suite(steps: usize, threads: usize, backend: BackendKind) -> Result<()> {
     let dir = std::env::temp_dir().join(format!("ctadsa-bench-suite-{}", std::process::id()));
     let (demo, wide) = (dir.join("demo-case"), dir.join("case-512"));
     eprintln!("synthesising the demo case and a 512² variant into {}", dir.display());
@@ -79,7 +94,7 @@ pub fn train_suite(steps: usize, threads: usize) -> Result<()> {
     ];
     let columns = ["field", "render", "losses", "backward", "optimiser", "total per step", "densify", "initialisation"];
     let mut table = format!(
-        "{} threads on {}; {steps} timed steps per row after 2 warm-up steps (ms; densify: one call)\n\n\
+        "{backend:?}, {} CPU threads on {}; {steps} timed steps per row after 2 warm-up steps (ms; densify: one call)\n\n\
          | configuration | field | render | losses | backward | Adam | **total per step** | densify | init | peak RSS (MiB) |\n\
          |---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
         threads,
@@ -87,7 +102,7 @@ pub fn train_suite(steps: usize, threads: usize) -> Result<()> {
     );
     for (name, case, config, sets) in rows {
         eprintln!("timing: {name}");
-        let (stages, rss) = parse_bench(&bench_row(case, config, &sets, steps, threads)?);
+        let (stages, rss) = parse_bench(&bench_row(case, config, &sets, RowRun { steps, threads, backend })?);
         let cells: Vec<String> =
             columns.iter().map(|c| stages.get(*c).map_or("–".into(), |v| format!("{v:.1}"))).collect();
         table += &format!("| {name} | {} | {} |\n", cells.join(" | "), rss.map_or("–".into(), |m| format!("{m:.0}")));
