@@ -9,6 +9,8 @@ use burn::optim::{RecordState, StateSink, StateSource, join_path};
 use burn::tensor::{Device, Tensor, TensorData};
 use burn_pack::Scalar;
 
+use crate::method::model::host_vec;
+
 /// Adam's moments of one parameter and the number of steps taken.
 #[derive(Clone)]
 pub struct FusedAdamState<const D: usize> {
@@ -23,10 +25,10 @@ pub struct FusedAdamState<const D: usize> {
 /// burn's `AdamState` nests its fields under this name.
 const MOMENTUM: &str = "momentum";
 
-/// `t`'s values: an unshared copy first (one pass; `x · 1 = x` exactly), whose buffer
-/// burn-ndarray then gives away without its element-by-element fallback for shared arrays.
+/// `t`'s values through [`host_vec`] (an unshared copy whose buffer burn-ndarray gives away
+/// without its element-by-element fallback for shared arrays), with `t`'s shape.
 fn host_data<const D: usize>(t: &Tensor<D>) -> TensorData {
-    t.clone().mul_scalar(1.0).into_data()
+    TensorData::new(host_vec(t.clone()), t.shape())
 }
 
 impl<const D: usize> RecordState for FusedAdamState<D> {
