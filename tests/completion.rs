@@ -14,10 +14,13 @@ use ctadsa_core::method::train::{StepLog, Trainer};
 use ctadsa_core::output::export::{RunSummary, write_outputs};
 use ctadsa_core::run::completion::{Monitor, Outcome, Silent, Start, run_completion};
 
+/// `configs/quick.toml`, compiled in (the test binary runs where the source tree is not, e.g. on
+/// a GPU machine).
+const QUICK_TOML: &str = include_str!(concat!(env!("CARGO_MANIFEST_DIR"), "/configs/quick.toml"));
+
 /// The built-in quick configuration, shrunk: fewer Gaussians and iterations, no densification
 /// (so that runs on different backends keep the same Gaussians), no prior-only member.
 fn tiny_config(iterations: usize) -> Config {
-    let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/configs/quick.toml")).unwrap();
     let overrides: Vec<String> = [
         format!("run.iterations={iterations}"),
         "init.n1=1500".into(),
@@ -31,7 +34,7 @@ fn tiny_config(iterations: usize) -> Config {
         "run.prior_only_member=false".into(),
     ]
     .into();
-    Config::from_toml_str(&text, "configs/quick.toml", &overrides).unwrap()
+    Config::from_toml_str(QUICK_TOML, "configs/quick.toml", &overrides).unwrap()
 }
 
 /// A small procedural tree (40 mm across), three views of 96 × 96 pixels of 1 mm, prior =
@@ -549,13 +552,12 @@ fn no_ground_truth_steers_the_method() {
 
 #[test]
 fn bad_configuration_values_name_the_key() {
-    let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/configs/quick.toml")).unwrap();
     for (set, key) in [
         ("loss.lambda_dssim=1.5", "lambda_dssim"),
         ("run.iteratons=10", "iteratons"),
         ("init.n2_mode=\"everywhere\"", "n2_mode"),
     ] {
-        let err = Config::from_toml_str(&text, "quick.toml", &[set.to_string()]).unwrap_err().to_string();
+        let err = Config::from_toml_str(QUICK_TOML, "quick.toml", &[set.to_string()]).unwrap_err().to_string();
         assert!(err.contains(key), "error for {set} does not name {key}: {err}");
     }
 }

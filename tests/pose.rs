@@ -114,7 +114,7 @@ fn joint_refinement_on_a_perturbed_synthetic_case() {
     };
     synthesize(&cfg, &dir, &mut |_| {}).expect("synthesis");
     let case = Case::load(&dir).expect("case loads");
-    let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/configs/quick.toml")).unwrap();
+    let text = include_str!(concat!(env!("CARGO_MANIFEST_DIR"), "/configs/quick.toml"));
     let iterations = 200;
     let overrides: Vec<String> = [
         format!("run.iterations={iterations}"),
@@ -129,7 +129,7 @@ fn joint_refinement_on_a_perturbed_synthetic_case() {
         "pose.start=20".into(),
     ]
     .into();
-    let config = Config::from_toml_str(&text, "configs/quick.toml", &overrides).unwrap();
+    let config = Config::from_toml_str(text, "configs/quick.toml", &overrides).unwrap();
     let mut trainer = Trainer::new(&case, config, Device::ndarray().autodiff()).expect("trainer");
     while trainer.iteration < iterations {
         trainer.step().expect("step");
