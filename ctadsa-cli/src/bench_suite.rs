@@ -6,6 +6,7 @@ use std::path::Path;
 use std::process::Command;
 
 use anyhow::{Context, Result, bail};
+use clap::ValueEnum;
 use ctadsa_core::data::synth::{SynthConfig, synthesize};
 
 use crate::backend::BackendKind;
@@ -54,12 +55,10 @@ struct RowRun {
 fn bench_row(case: &Path, config: Option<&Path>, sets: &[&str], run: RowRun) -> Result<String> {
     let exe = std::env::current_exe().context("cannot find the ctadsa binary")?;
     let mut cmd = Command::new(exe);
-    let backend = match run.backend {
-        BackendKind::Ndarray => "ndarray",
-        BackendKind::Wgpu => "wgpu",
-    };
+    // The flag's value as clap spells it (every variant has one).
+    let backend = run.backend.to_possible_value().map(|v| v.get_name().to_owned()).unwrap_or_default();
     cmd.args(["bench", "--threads", &run.threads.to_string(), "train", "--steps", &run.steps.to_string()]);
-    cmd.args(["--backend", backend]);
+    cmd.args(["--backend", &backend]);
     cmd.arg("--case").arg(case);
     if let Some(c) = config {
         cmd.arg("--config").arg(c);
