@@ -6,7 +6,7 @@
 use burn::tensor::{Device, Tensor, TensorData};
 use ctadsa_core::method::blur_op::window_blur;
 use ctadsa_core::method::model::host_vec;
-use ctadsa_core::method::model::linear_op::fused_linear;
+use ctadsa_core::method::model::linear_op::{Activation, fused_linear};
 use ctadsa_core::method::model::scale_op::bounded_scale;
 use ctadsa_core::method::ssim_op::ssim_mean;
 
@@ -84,13 +84,13 @@ fn fused_linear_on_wgpu_matches_cpu() {
     let Some(gpu) = wgpu_or_skip("fused linear") else { return };
     let (n, i, o) = (97, 12, 8);
     let (x, wt, b, up) = (values(n * i, 3), values(i * o, 4), values(o, 5), values(n * o, 6));
-    let run = |device: Device| {
+    let run = |device: Device, act: Activation| {
         let device = device.autodiff();
         let x = Tensor::<2>::from_data(TensorData::new(x.clone(), [n, i]), &device).require_grad();
         let w = Tensor::<2>::from_data(TensorData::new(wt.clone(), [i, o]), &device).require_grad();
         let b = Tensor::<1>::from_data(TensorData::new(b.clone(), [o]), &device).require_grad();
         let up = Tensor::<2>::from_data(TensorData::new(up.clone(), [n, o]), &device);
-        let out = fused_linear(x.clone(), w.clone(), b.clone(), true);
+        let out = fused_linear(x.clone(), w.clone(), b.clone(), act);
         let grads = (out.clone() * up).sum().backward();
         [
             host_vec(out),
@@ -99,9 +99,11 @@ fn fused_linear_on_wgpu_matches_cpu() {
             host_vec(b.grad(&grads).unwrap().reshape([1, o])),
         ]
     };
-    let (a, b) = (run(Device::ndarray()), run(gpu));
-    for (k, name) in ["output", "x", "weight", "bias"].iter().enumerate() {
-        assert_close(name, &a[k], &b[k]);
+    for act in [Activation::Relu, Activation::Softplus] {
+        let (a, b) = (run(Device::ndarray(), act), run(gpu.clone(), act));
+        for (k, name) in ["output", "x", "weight", "bias"].iter().enumerate() {
+            assert_close(&format!("{name} ({act:?})"), &a[k], &b[k]);
+        }
     }
 }
 

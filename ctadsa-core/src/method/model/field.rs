@@ -3,12 +3,11 @@
 
 use burn::module::Module;
 use burn::nn::{Linear, LinearConfig};
-use burn::tensor::activation::{relu, softplus};
 use burn::tensor::{Device, Tensor, TensorData};
 use serde::{Deserialize, Serialize};
 
 use super::hash_grid::{HashGrid, HashGridConfig};
-use super::linear_op::fused_linear;
+use super::linear_op::{Activation, fused_linear};
 use super::uniform_tensor;
 use burn::module::Param;
 
@@ -50,12 +49,12 @@ pub struct FieldFrame {
 }
 
 /// `act(x·W + b)` of a burn `Linear` through the fused op (its parameters, its gradients).
-fn fused(layer: &Linear, x: Tensor<2>, relu: bool) -> Tensor<2> {
+fn fused(layer: &Linear, x: Tensor<2>, act: Activation) -> Tensor<2> {
     let bias = match &layer.bias {
         Some(b) => b.val(),
         None => Tensor::zeros([layer.weight.dims()[1]], &x.device()),
     };
-    fused_linear(x, layer.weight.val(), bias, relu)
+    fused_linear(x, layer.weight.val(), bias, act)
 }
 
 /// Hash grid + MLP.
@@ -121,12 +120,14 @@ impl OpacityField {
         let u = (positions_mm - min) * inv;
         let mut x = self.grid.forward(u);
         for layer in &self.hidden {
-            x = fused(layer, x, true);
+            x = fused(layer, x, Activation::Relu);
         }
-        let y = fused(&self.output, x, false).reshape([n]);
-        match self.frame.output {
-            OutputActivation::Relu => relu(y),
-            OutputActivation::Softplus => softplus(y, 1.0),
-        }
+        // The output activation runs inside the layer's op: one parallel pass each way, where
+        // burn's softplus makes seven single-threaded passes over the `[N]` densities.
+        let output = match self.frame.output {
+            OutputActivation::Relu => Activation::Relu,
+            OutputActivation::Softplus => Activation::Softplus,
+        };
+        fused(&self.output, x, output).reshape([n])
     }
 }

@@ -3,7 +3,7 @@
 //! autodiff matmul copies every transposed operand element by element, and its ReLU copies the
 //! tensor autodiff keeps): the opacity field's MLP costs a fraction of the composed ops at
 //! paper scale. Other backends compose their own primitive ops; `cpu::reference` (f64 loops)
-//! is the kernels' oracle and a test compares the op with burn's `Linear` + `relu`.
+//! is the kernels' oracle and a test compares the op with burn's `Linear` + `relu` / `softplus`.
 
 #![allow(deprecated)] // burn-ndarray is deprecated in burn 0.22 in favour of burn-flex.
 
@@ -32,16 +32,56 @@ pub struct LinearGrads<B: Backend> {
     pub bias: FloatTensor<B>,
 }
 
+/// The activation a fused linear layer applies to `z = x·w + b`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Activation {
+    /// `z` itself.
+    Identity,
+    /// `max(0, z)`.
+    Relu,
+    /// `ln(1 + eᶻ)`, evaluated as `max(0, z) + ln(1 + e^(−|z|))` (no overflow for large `z`).
+    Softplus,
+}
+
+impl Activation {
+    /// The activation of `z` (the CPU kernels').
+    #[inline(always)]
+    pub fn apply(self, z: f32) -> f32 {
+        match self {
+            Self::Identity => z,
+            Self::Relu => z.max(0.0),
+            Self::Softplus => z.max(0.0) + (-z.abs()).exp().ln_1p(),
+        }
+    }
+
+    /// `∂L/∂z` from the upstream gradient `g` and the output `y`: `g`; `g` where `y > 0`, else
+    /// 0; and `g · (1 − e^(−y))` (the logistic of `z`, from the output: `e^(−y) = 1 / (1 + eᶻ)`),
+    /// with `1 − e^(−y)` as `−expm1(−y)`, exact also for small `y`.
+    #[inline(always)]
+    pub fn gradient(self, g: f32, y: f32) -> f32 {
+        match self {
+            Self::Identity => g,
+            Self::Relu => {
+                if y > 0.0 {
+                    g
+                } else {
+                    0.0
+                }
+            }
+            Self::Softplus => g * -(-y).exp_m1(),
+        }
+    }
+}
+
 /// Backend operations of the fused linear layer.
 #[backend_extension(Autodiff, Cube: cfg(feature = "wgpu"), NdArray)]
 pub trait LinearBackend: Backend {
-    /// `x` `[N, I]`, `weight` `[I, O]`, `bias` `[O]` → `act(x·weight + bias)` `[N, O]`, with
-    /// `act` = ReLU when `relu`, else the identity.
+    /// `x` `[N, I]`, `weight` `[I, O]`, `bias` `[O]` → `act(x·weight + bias)` `[N, O]`.
     fn fused_linear(
         x: FloatTensor<Self>,
         weight: FloatTensor<Self>,
         bias: FloatTensor<Self>,
-        relu: bool,
+        act: Activation,
     ) -> FloatTensor<Self>;
     /// Gradients for the upstream gradient `grad` `[N, O]`; `output` is the forward result.
     fn fused_linear_backward(
@@ -49,7 +89,7 @@ pub trait LinearBackend: Backend {
         weight: FloatTensor<Self>,
         output: FloatTensor<Self>,
         grad: FloatTensor<Self>,
-        relu: bool,
+        act: Activation,
     ) -> LinearGrads<Self>;
 }
 
@@ -58,12 +98,12 @@ impl LinearBackend for NdArray {
         x: FloatTensor<Self>,
         weight: FloatTensor<Self>,
         bias: FloatTensor<Self>,
-        relu: bool,
+        act: Activation,
     ) -> FloatTensor<Self> {
         let device = x.device();
         let n = x.shape()[0];
         let o = weight.shape()[1];
-        let y = with_host(&x, |x| with_host(&weight, |w| with_host(&bias, |b| cpu::forward(x, w, b, n, relu))));
+        let y = with_host(&x, |x| with_host(&weight, |w| with_host(&bias, |b| cpu::forward(x, w, b, n, act))));
         Self::float_from_data(TensorData::new(y, [n, o]), &device)
     }
 
@@ -72,12 +112,12 @@ impl LinearBackend for NdArray {
         weight: FloatTensor<Self>,
         output: FloatTensor<Self>,
         grad: FloatTensor<Self>,
-        relu: bool,
+        act: Activation,
     ) -> LinearGrads<Self> {
         let device = x.device();
         let (n, i, o) = (x.shape()[0], weight.shape()[0], weight.shape()[1]);
         let (gx, gw, gb) = with_host(&x, |x| {
-            with_host(&weight, |w| with_host(&output, |y| with_host(&grad, |g| cpu::backward(x, w, y, g, n, o, relu))))
+            with_host(&weight, |w| with_host(&output, |y| with_host(&grad, |g| cpu::backward(x, w, y, g, n, o, act))))
         });
         LinearGrads {
             x: Self::float_from_data(TensorData::new(gx, [n, i]), &device),
@@ -89,10 +129,22 @@ impl LinearBackend for NdArray {
 
 /// The layer composed of a backend's own primitive ops (its matmul, broadcasting add, ReLU).
 #[cfg(any(feature = "wgpu", test))]
-fn composed_forward<B: Backend>(x: FloatTensor<B>, w: FloatTensor<B>, b: FloatTensor<B>, relu: bool) -> FloatTensor<B> {
+fn composed_forward<B: Backend>(
+    x: FloatTensor<B>,
+    w: FloatTensor<B>,
+    b: FloatTensor<B>,
+    act: Activation,
+) -> FloatTensor<B> {
     let o = w.shape()[1];
     let z = B::float_add(B::float_matmul(x, w), B::float_reshape(b, Shape::new([1, o])));
-    if relu { B::relu(z) } else { z }
+    match act {
+        Activation::Identity => z,
+        Activation::Relu => B::relu(z),
+        Activation::Softplus => {
+            let tail = B::float_log1p(B::float_exp(B::float_neg(B::float_abs(z.clone()))));
+            B::float_add(B::relu(z), tail)
+        }
+    }
 }
 
 #[cfg(any(feature = "wgpu", test))]
@@ -101,10 +153,19 @@ fn composed_backward<B: Backend>(
     w: FloatTensor<B>,
     y: FloatTensor<B>,
     grad: FloatTensor<B>,
-    relu: bool,
+    act: Activation,
 ) -> LinearGrads<B> {
     let (n, i, o) = (x.shape()[0], w.shape()[0], w.shape()[1]);
-    let gz = if relu { B::relu_backward(y, grad) } else { grad };
+    let gz = match act {
+        Activation::Identity => grad,
+        Activation::Relu => B::relu_backward(y, grad),
+        // `1 − e^(−y)`: the logistic of the pre-activation (exact to ≈ 6e-8 absolute for small
+        // `y`, where the CPU kernels use `expm1`).
+        Activation::Softplus => {
+            let one_minus = B::float_neg(B::float_add_scalar(B::float_exp(B::float_neg(y)), (-1f32).into()));
+            B::float_mul(grad, one_minus)
+        }
+    };
     let grad_x = B::float_matmul(gz.clone(), B::float_transpose(w));
     // The sums over the N rows go in two passes: partial sums over chunks of rows, then over
     // the chunks. A backend without autotuning (CubeCL as built here) reduces an axis with one
@@ -149,9 +210,9 @@ impl LinearBackend for burn_cubecl::CubeBackend {
         x: FloatTensor<Self>,
         weight: FloatTensor<Self>,
         bias: FloatTensor<Self>,
-        relu: bool,
+        act: Activation,
     ) -> FloatTensor<Self> {
-        composed_forward::<Self>(x, weight, bias, relu)
+        composed_forward::<Self>(x, weight, bias, act)
     }
 
     fn fused_linear_backward(
@@ -159,9 +220,9 @@ impl LinearBackend for burn_cubecl::CubeBackend {
         weight: FloatTensor<Self>,
         output: FloatTensor<Self>,
         grad: FloatTensor<Self>,
-        relu: bool,
+        act: Activation,
     ) -> LinearGrads<Self> {
-        composed_backward::<Self>(x, weight, output, grad, relu)
+        composed_backward::<Self>(x, weight, output, grad, act)
     }
 }
 
@@ -169,13 +230,13 @@ impl LinearBackend for burn_cubecl::CubeBackend {
 struct LinearBackward;
 
 impl<B: Backend + LinearBackend> Backward<B, 3> for LinearBackward {
-    type State = (FloatTensor<B>, FloatTensor<B>, FloatTensor<B>, bool);
+    type State = (FloatTensor<B>, FloatTensor<B>, FloatTensor<B>, Activation);
 
     fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, _checkpointer: &mut Checkpointer) {
         let [node_x, node_w, node_b] = ops.parents;
         let grad = grads.consume::<B>(&ops.node);
-        let (x, w, y, relu) = ops.state;
-        let g = B::fused_linear_backward(x, w, y, grad, relu);
+        let (x, w, y, act) = ops.state;
+        let g = B::fused_linear_backward(x, w, y, grad, act);
         if let Some(n) = node_x {
             grads.register::<B>(n.id, g.x);
         }
@@ -193,16 +254,16 @@ impl<B: Backend + LinearBackend, C: CheckpointStrategy> LinearBackend for Autodi
         x: FloatTensor<Self>,
         weight: FloatTensor<Self>,
         bias: FloatTensor<Self>,
-        relu: bool,
+        act: Activation,
     ) -> FloatTensor<Self> {
         match LinearBackward.prepare::<C>([x.node(), weight.node(), bias.node()]).compute_bound().stateful() {
             OpsKind::Tracked(prep) => {
                 let (x, w) = (x.into_primitive(), weight.into_primitive());
-                let y = B::fused_linear(x.clone(), w.clone(), bias.into_primitive(), relu);
-                prep.finish((x, w, y.clone(), relu), y)
+                let y = B::fused_linear(x.clone(), w.clone(), bias.into_primitive(), act);
+                prep.finish((x, w, y.clone(), act), y)
             }
             OpsKind::UnTracked(prep) => {
-                prep.finish(B::fused_linear(x.into_primitive(), weight.into_primitive(), bias.into_primitive(), relu))
+                prep.finish(B::fused_linear(x.into_primitive(), weight.into_primitive(), bias.into_primitive(), act))
             }
         }
     }
@@ -212,27 +273,27 @@ impl<B: Backend + LinearBackend, C: CheckpointStrategy> LinearBackend for Autodi
         weight: FloatTensor<Self>,
         output: FloatTensor<Self>,
         grad: FloatTensor<Self>,
-        relu: bool,
+        act: Activation,
     ) -> LinearGrads<Self> {
         let g = B::fused_linear_backward(
             x.into_primitive(),
             weight.into_primitive(),
             output.into_primitive(),
             grad.into_primitive(),
-            relu,
+            act,
         );
         LinearGrads { x: Self::from_inner(g.x), weight: Self::from_inner(g.weight), bias: Self::from_inner(g.bias) }
     }
 }
 
 /// `act(x·weight + bias)` for `x` `[N, I]`, `weight` `[I, O]`, `bias` `[O]`: `[N, O]`,
-/// differentiable in all three; `act` is ReLU when `relu`, else the identity.
-pub fn fused_linear(x: Tensor<2>, weight: Tensor<2>, bias: Tensor<1>, relu: bool) -> Tensor<2> {
+/// differentiable in all three.
+pub fn fused_linear(x: Tensor<2>, weight: Tensor<2>, bias: Tensor<1>, act: Activation) -> Tensor<2> {
     Tensor::from_dispatch(<Dispatch as LinearBackend>::fused_linear(
         x.into_dispatch(),
         weight.into_dispatch(),
         bias.into_dispatch(),
-        relu,
+        act,
     ))
 }
 
@@ -240,7 +301,7 @@ pub fn fused_linear(x: Tensor<2>, weight: Tensor<2>, bias: Tensor<1>, relu: bool
 mod tests {
     use burn::module::Param;
     use burn::nn::LinearConfig;
-    use burn::tensor::activation::relu;
+    use burn::tensor::activation::{relu, softplus};
     use burn::tensor::{Device, Distribution};
 
     use super::*;
@@ -253,25 +314,48 @@ mod tests {
         assert!(worst <= 1e-5 * scale, "{name}: worst difference {worst} (scale {scale})");
     }
 
-    /// The op, forward and backward, against burn's own `Linear` and `relu` under autodiff.
+    /// The op, forward and backward, against burn's own `Linear`, `relu` and `softplus` under
+    /// autodiff (pre-activations over ±4, and some beyond burn's softplus threshold of 20).
     #[test]
-    fn fused_op_matches_burns_linear_and_relu() {
+    fn fused_op_matches_burns_linear_and_activations() {
         let device = Device::ndarray().autodiff();
         let (n, i, o) = (300, 24, 16);
         let mut layer = LinearConfig::new(i, o).init(&device);
         layer.weight = Param::from_tensor(Tensor::random([i, o], Distribution::Uniform(-1.0, 1.0), &device));
         let x = Tensor::<2>::random([n, i], Distribution::Uniform(-1.0, 1.0), &device).require_grad();
         let up = Tensor::<2>::random([n, o], Distribution::Uniform(-1.0, 1.0), &device);
-        for act in [true, false] {
+        for act in [Activation::Relu, Activation::Identity, Activation::Softplus] {
             let bias = layer.bias.as_ref().expect("burn's Linear has a bias").val();
             let ours = fused_linear(x.clone(), layer.weight.val(), bias.clone(), act);
-            let burns = if act { relu(layer.forward(x.clone())) } else { layer.forward(x.clone()) };
+            let burns = match act {
+                Activation::Identity => layer.forward(x.clone()),
+                Activation::Relu => relu(layer.forward(x.clone())),
+                Activation::Softplus => softplus(layer.forward(x.clone()), 1.0),
+            };
             assert_close("output", ours.clone(), burns.clone());
             let (ga, gb) = ((ours * up.clone()).sum().backward(), (burns * up.clone()).sum().backward());
             assert_close("x", x.grad(&ga).unwrap(), x.grad(&gb).unwrap());
             assert_close("weight", layer.weight.val().grad(&ga).unwrap(), layer.weight.val().grad(&gb).unwrap());
             let (ba, bb) = (bias.grad(&ga).unwrap(), bias.grad(&gb).unwrap());
             assert_close("bias", ba.reshape([1, o]), bb.reshape([1, o]));
+        }
+    }
+
+    /// The CPU activation and its slope from the output against f64 over ±40 (the softplus's
+    /// output and slope both reach ≈ 4e-18 at −40): relative error ≤ 1e-5 of the value itself.
+    #[test]
+    fn softplus_and_its_slope_are_accurate_in_both_tails() {
+        for k in -400..=400 {
+            let z = k as f32 * 0.1;
+            let zd = z as f64;
+            let (y_exact, slope_exact) = (zd.exp().ln_1p(), 1.0 / (1.0 + (-zd).exp()));
+            let y = Activation::Softplus.apply(z);
+            let slope = Activation::Softplus.gradient(1.0, y);
+            assert!((y as f64 - y_exact).abs() <= 1e-5 * y_exact, "softplus({z}) = {y}, not {y_exact}");
+            assert!(
+                (slope as f64 - slope_exact).abs() <= 1e-5 * slope_exact,
+                "slope at {z}: {slope}, not {slope_exact}"
+            );
         }
     }
 
@@ -299,7 +383,7 @@ mod tests {
         let (x, w, b, g) = (values(n * i), values(i * o), values(o), values(n * o));
         let device = burn::backend::ndarray::NdArrayDevice::Cpu;
         let t = |v: &[f32], shape: Vec<usize>| NdArray::float_from_data(TensorData::new(v.to_vec(), shape), &device);
-        for act in [true, false] {
+        for act in [Activation::Relu, Activation::Identity, Activation::Softplus] {
             let y = composed_forward::<NdArray>(t(&x, vec![n, i]), t(&w, vec![i, o]), t(&b, vec![o]), act);
             let y_cpu = cpu::forward(&x, &w, &b, n, act);
             let y_host = host::<NdArray>(y.clone());
