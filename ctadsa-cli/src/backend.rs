@@ -1,8 +1,20 @@
 //! Backend choice from the command line.
 
-use anyhow::{Result, bail};
+use anyhow::Result;
 use burn::tensor::Device;
 use clap::ValueEnum;
+
+/// The chosen backend cannot run on this machine (the process exits with code 2).
+#[derive(Debug)]
+pub struct BackendUnavailable(pub String);
+
+impl std::fmt::Display for BackendUnavailable {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for BackendUnavailable {}
 
 /// Where tensors live and kernels run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -27,11 +39,12 @@ impl BackendKind {
                             eprintln!("wgpu adapter: {name}");
                             Ok(Device::wgpu(burn::tensor::DeviceKind::DefaultDevice))
                         }
-                        Err(why) => bail!("--backend wgpu: {why}"),
+                        Err(why) => Err(BackendUnavailable(format!("--backend wgpu: {why}")).into()),
                     }
                 }
                 #[cfg(not(feature = "wgpu"))]
-                bail!("this build has no wgpu support (rebuild with the `wgpu` feature)")
+                Err(BackendUnavailable("this build has no wgpu support (rebuild with the `wgpu` feature)".into())
+                    .into())
             }
         }
     }

@@ -59,10 +59,22 @@ enum Command {
     Report(report::ReportArgs),
 }
 
-fn main() -> Result<()> {
+fn main() -> std::process::ExitCode {
     allocator::keep_freed_memory();
     backend::prefer_cpu_default_device();
     let cli = Cli::parse();
+    match run(cli) {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("Error: {e:?}");
+            // A backend this machine cannot run: 2, as for other usage errors (clap's).
+            let unusable = e.chain().any(|c| c.is::<backend::BackendUnavailable>());
+            std::process::ExitCode::from(if unusable { 2 } else { 1 })
+        }
+    }
+}
+
+fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Synth(args) => synth::run(args),
         Command::Complete(args) => complete::run(args),
