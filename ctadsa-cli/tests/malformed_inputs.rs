@@ -142,6 +142,18 @@ fn out_of_range_config_values_are_refused_naming_the_key() {
         ("init.mask_threshold=nan", "init.mask_threshold"),
         ("run.iterationz=5", "iterationz"),
         ("field.encoding.log2_table=40", "log2_table"),
+        // Values fine as f64 that break the f32 arithmetic they are used in.
+        ("optim.epsilon=1e-50", "optim.epsilon"),
+        ("model.scale_max_voxels=1e40", "model.scale_max_voxels"),
+        // Keys that were not range-checked.
+        ("densify.min_density=nan", "densify.min_density"),
+        ("densify.clone_scale_voxels=[0, 0]", "densify.clone_scale_voxels"),
+        ("loss.fn_tau=nan", "loss.fn_tau"),
+        ("loss.fn_margin=-1", "loss.fn_margin"),
+        ("optim.field_weight_decay=-1", "optim.field_weight_decay"),
+        ("loss.pa_k=1000000000000", "loss.pa_k"),
+        // Refused before training, not after it.
+        ("output.voxel_mm=0.011", "output.voxel_mm"),
     ] {
         refused(&dir, &["complete", "--case", &case, "--config", &config, "--out", "out/run", "--set", set], &[key]);
     }
@@ -188,6 +200,28 @@ fn malformed_case_files_are_refused_and_nothing_escapes() {
     copy_dir(valid_case(), &img);
     std::fs::write(img.join("views/ap.tiff"), b"not a tiff").unwrap();
     refused(&dir, &["complete", "--case", "bad-image", "--config", &config, "--out", "out/run"], &["ap.tiff"]);
+    // A view image that is a link to a device or a FIFO: refused before it is opened (reading
+    // /dev/zero would never end, opening a FIFO would wait for a writer for ever).
+    for (name, target) in [("image-dev-zero", PathBuf::from("/dev/zero")), ("image-fifo", dir.join("a-fifo"))] {
+        if name == "image-fifo" && !make_fifo(&target) {
+            continue;
+        }
+        let case = dir.join(name);
+        copy_dir(valid_case(), &case);
+        std::fs::remove_file(case.join("views/ap.tiff")).unwrap();
+        std::os::unix::fs::symlink(&target, case.join("views/ap.tiff")).unwrap();
+        refused(
+            &dir,
+            &["complete", "--case", name, "--config", &config, "--out", "out/run"],
+            &["ap.tiff", "regular file"],
+        );
+    }
+}
+
+/// A FIFO at `path` (`mkfifo`); false where the tool is missing.
+fn make_fifo(path: &Path) -> bool {
+    let _ = std::fs::remove_file(path);
+    Command::new("mkfifo").arg(path).status().is_ok_and(|s| s.success())
 }
 
 #[test]
@@ -198,6 +232,10 @@ fn malformed_meshes_are_refused_naming_the_file() {
         ("nan-vertex", "v nan 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"),
         ("no-faces", "v 0 0 0\nv 1 0 0\n"),
         ("garbage", "\u{0}\u{1}this is not a mesh\n"),
+        // A negative texture index past the list: an overflow panic inside tobj.
+        ("negative-texture-index", "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1/-5 2/-5 3/-5\n"),
+        // Side references are not followed: with the material library ignored, no faces remain.
+        ("mtllib-dev-zero", "mtllib /dev/zero\nv 0 0 0\nv 1 0 0\n"),
     ];
     let gt = valid_case().join("gt/complete.obj");
     for (name, text) in corpus {
@@ -210,6 +248,23 @@ fn malformed_meshes_are_refused_naming_the_file() {
         &["eval", "--pred", gt.to_str().unwrap(), "--gt", gt.to_str().unwrap(), "--samples", "2e9"],
         &["--samples"],
     );
+    // A mesh that is a device or a FIFO.
+    std::os::unix::fs::symlink("/dev/zero", dir.join("dev-zero.obj")).unwrap();
+    refused(&dir, &["eval", "--pred", "dev-zero.obj", "--gt", gt.to_str().unwrap()], &["dev-zero.obj", "regular file"]);
+    if make_fifo(&dir.join("fifo.obj")) {
+        refused(&dir, &["eval", "--pred", "fifo.obj", "--gt", gt.to_str().unwrap()], &["fifo.obj", "regular file"]);
+    }
+    // A material library that names a FIFO is not opened: the mesh itself is read.
+    if make_fifo(&dir.join("materials.mtl")) {
+        let text = std::fs::read_to_string(&gt).unwrap();
+        std::fs::write(dir.join("with-mtllib.obj"), format!("mtllib materials.mtl\n{text}")).unwrap();
+        let out = Command::new(BIN)
+            .current_dir(&dir)
+            .args(["eval", "--pred", "with-mtllib.obj", "--gt", gt.to_str().unwrap(), "--samples", "2000"])
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    }
 }
 
 /// A NIfTI-1 single file (`.nii`): header fields as given, `data` after the 352-byte offset.

@@ -583,7 +583,61 @@ impl Config {
         ] {
             check(r.iter().all(|v| v.is_finite() && *v >= 0.0), k, "learning rates must be finite and ≥ 0")?;
         }
-        check(self.optim.epsilon > 0.0, "optim.epsilon", "must be > 0")?;
+        // Checked as the f32 the optimiser and the model use: 1e-50 passes as an f64 but is 0 in
+        // f32 (NaN densities), and 1e40 is infinite.
+        let f32_positive = |v: f64| (v as f32).is_finite() && (v as f32) >= f32::MIN_POSITIVE;
+        check(
+            f32_positive(self.optim.epsilon) && self.optim.epsilon <= 1.0,
+            "optim.epsilon",
+            "must be in [1.2e-38, 1] (a positive normal f32)",
+        )?;
+        check(
+            self.optim.field_weight_decay.is_finite() && (0.0..=1e3).contains(&self.optim.field_weight_decay),
+            "optim.field_weight_decay",
+            "must be in [0, 1000]",
+        )?;
+        check(
+            self.model.scale_min_voxels >= 1e-4 && self.model.scale_max_voxels <= 1e4,
+            "model.scale_max_voxels",
+            "scales must lie in [1e-4, 1e4] voxels",
+        )?;
+        check(
+            self.model.initial_density.is_finite() && (self.model.initial_density as f32).is_finite(),
+            "model.initial_density",
+            "must be finite in f32",
+        )?;
+        check(
+            self.densify.min_density.is_finite() && (0.0..=1e6).contains(&self.densify.min_density),
+            "densify.min_density",
+            "must be in [0, 1e6]",
+        )?;
+        check(
+            self.densify.clone_scale_voxels.iter().all(|v| v.is_finite() && *v > 0.0 && *v <= 1e4),
+            "densify.clone_scale_voxels",
+            "both must be in (0, 1e4] voxels",
+        )?;
+        check(
+            self.densify.grad_threshold.is_finite() && f32_positive(self.densify.grad_threshold),
+            "densify.grad_threshold",
+            "must be a positive finite f32",
+        )?;
+        check((0.0..1.0).contains(&self.loss.fn_tau), "loss.fn_tau", "must be in [0, 1)")?;
+        check((0.0..=1.0).contains(&self.loss.fn_margin), "loss.fn_margin", "must be in [0, 1]")?;
+        for (k, w) in [("loss.fn_weight", self.loss.fn_weight), ("loss.pa_weight", self.loss.pa_weight)] {
+            check(w.is_finite() && (0.0..=1e6).contains(&w), k, "must be in [0, 1e6]")?;
+        }
+        check(self.loss.pa_k <= 256, "loss.pa_k", "must be at most 256 neighbours")?;
+        check(
+            self.loss.pa_radius_mm.is_finite() && self.loss.pa_radius_mm <= 100.0,
+            "loss.pa_radius_mm",
+            "must be at most 100 mm",
+        )?;
+        check(
+            self.output.voxel_mm == 0.0 || (0.01..=100.0).contains(&self.output.voxel_mm),
+            "output.voxel_mm",
+            "must be 0 (the case's voxel) or in [0.01, 100] mm",
+        )?;
+        check(self.output.mc_level.is_finite(), "output.mc_level", "must be finite")?;
         check((0.0..=1.0).contains(&self.loss.lambda_dssim), "loss.lambda_dssim", "must be in [0, 1]")?;
         check(self.loss.fn_weight >= 0.0, "loss.fn_weight", "must be ≥ 0")?;
         check(self.loss.pa_weight >= 0.0, "loss.pa_weight", "must be ≥ 0")?;

@@ -19,8 +19,19 @@ use crate::output::viewer::{ViewerPart, viewer_html};
 /// The report's file name inside the run folder.
 pub const REPORT_FILE: &str = "report.html";
 
+/// `text` safe inside HTML text and quoted attribute values.
 fn escape(text: &str) -> String {
-    text.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;").replace('"', "&quot;")
+    text.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;").replace('"', "&quot;").replace('\'', "&#39;")
+}
+
+/// A summary value as text for the page: a number as it is, anything else (a crafted summary
+/// may hold strings or objects where numbers belong) escaped.
+fn text(v: &Value) -> String {
+    match v {
+        Value::Number(n) => n.to_string(),
+        Value::String(s) => escape(s),
+        other => escape(&other.to_string()),
+    }
 }
 
 fn png_tag(path: &Path, alt: &str) -> Result<String> {
@@ -120,7 +131,11 @@ fn header(html: &mut String, title: &str, run_dir: &Path, case_dir: Option<&Path
     let _ = write!(
         html,
         ". {} iterations, {} Gaussians ({} seeded on the prior, {} from the images), {} triangles.</p>",
-        summary["iterations"], summary["gaussians"], summary["n1"], summary["n2"], summary["mesh_triangles"]
+        text(&summary["iterations"]),
+        text(&summary["gaussians"]),
+        text(&summary["n1"]),
+        text(&summary["n2"]),
+        text(&summary["mesh_triangles"])
     );
 }
 
@@ -248,7 +263,7 @@ fn centreline(html: &mut String, run_dir: &Path, summary: &Value) -> Result<()> 
     let _ = write!(
         html,
         "<h2>Centreline</h2><p><code>centreline.swc</code> and <code>centreline.vtp</code> (3D Slicer, ParaView, VMTK):          {} nodes, {} mm in all, {} mm on new vessels (SWC type 4; type 3 = prior).</p>",
-        c["nodes"],
+        text(&c["nodes"]),
         num(&c["length_mm"]),
         num(&c["new_length_mm"])
     );
@@ -301,7 +316,7 @@ fn poses(html: &mut String, run_dir: &Path, summary: &Value) -> Result<()> {
             let _ = write!(
                 html,
                 "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
-                e["view"],
+                text(&e["view"]),
                 num(&e["reprojection_before_px"]),
                 num(&e["reprojection_after_px"]),
                 num(&e["rotation_error_deg"]),
@@ -311,4 +326,41 @@ fn poses(html: &mut String, run_dir: &Path, summary: &Value) -> Result<()> {
         html.push_str("</table>");
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A crafted run folder: markup in every value the page shows from summary.json and
+    /// poses.json (numbers replaced by strings, arrays and objects) never reaches the page
+    /// unescaped.
+    #[test]
+    fn markup_in_a_summary_is_escaped() {
+        let dir = std::env::temp_dir().join(format!("ctadsa-report-inject-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let evil = "<script>alert(1)</script><img src=x onerror=alert(2)>";
+        let summary = serde_json::json!({
+            "case_dir": evil,
+            "iterations": evil,
+            "gaussians": [evil],
+            "n1": {"a": evil},
+            "n2": evil,
+            "mesh_triangles": evil,
+            "metrics": {"overall": {"cd_mean_mm": evil, "cd_sum_mm": evil, "hd95_mm": evil, "hd_mm": evil}},
+            "centreline": {"nodes": evil, "length_mm": evil, "new_length_mm": evil, "scores": {"recall": evil}},
+            "pose_errors": [{"view": evil, "reprojection_before_px": evil}],
+        });
+        std::fs::write(dir.join("summary.json"), summary.to_string()).unwrap();
+        let poses = serde_json::json!({"views": [{"name": evil, "rotation_deg": [evil], "translation_mm": evil}]});
+        std::fs::write(dir.join("poses.json"), poses.to_string()).unwrap();
+        std::fs::write(dir.join("config.toml"), evil).unwrap();
+        let page = std::fs::read_to_string(write_report(&dir).unwrap()).unwrap();
+        assert!(!page.contains("<script>alert"), "unescaped script");
+        assert!(!page.contains("<img src=x"), "unescaped element");
+        assert!(page.contains("&lt;script&gt;alert(1)"), "the value is shown, escaped");
+        // The page's own scripts: only the one that counts decoded images.
+        assert_eq!(page.matches("<script").count(), 1, "one script of the page's own");
+        std::fs::remove_dir_all(&dir).ok();
+    }
 }

@@ -83,6 +83,7 @@ pub fn read_xa_run(path: &Path) -> Result<XaRun> {
     if !path.exists() {
         return Err(CoreError::io(path, std::io::Error::new(std::io::ErrorKind::NotFound, "no such file")));
     }
+    crate::error::check_input_file(path)?;
     let obj = open_file(path).map_err(|e| CoreError::format(path, format!("not a readable DICOM file: {e}")))?;
     check_modality_and_syntax(&obj, path)?;
     let layout = PixelLayout::read(&obj, path)?;

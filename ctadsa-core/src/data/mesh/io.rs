@@ -69,10 +69,18 @@ pub fn write_mesh(path: &Path, mesh: &TriMesh) -> Result<()> {
 
 fn read_obj(path: &Path) -> Result<TriMesh> {
     let opts = tobj::LoadOptions { triangulate: true, single_index: false, ignore_points: true, ignore_lines: true };
-    let (models, _) = tobj::load_obj(path, &opts).map_err(|e| match e {
-        tobj::LoadError::OpenFileFailed => CoreError::io(path, std::io::Error::from(std::io::ErrorKind::NotFound)),
-        other => CoreError::format(path, format!("malformed OBJ: {other}")),
-    })?;
+    let bytes = read_file(path)?;
+    check_obj_indices(&bytes).map_err(|e| CoreError::format(path, format!("malformed OBJ: {e}")))?;
+    // Parsed from memory with no material loader: an `mtllib` line is ignored rather than
+    // followed (it may name any file, /dev/zero or a FIFO). tobj panics on some crafted index
+    // lists (an overflow on a negative index past the list): caught and reported as a refusal.
+    let parsed = std::panic::catch_unwind(|| {
+        tobj::load_obj_buf(&mut std::io::Cursor::new(&bytes), &opts, |_| Ok(Default::default()))
+    });
+    let (models, _) = match parsed {
+        Ok(result) => result.map_err(|e| CoreError::format(path, format!("malformed OBJ: {e}")))?,
+        Err(_) => return Err(CoreError::format(path, "malformed OBJ: an index list the parser cannot read")),
+    };
     let mut mesh = TriMesh::default();
     for m in models {
         let base = mesh.vertices.len() as u32;
@@ -81,6 +89,44 @@ fn read_obj(path: &Path) -> Result<TriMesh> {
         mesh.faces.extend(m.mesh.indices.chunks_exact(3).map(|c| [c[0] + base, c[1] + base, c[2] + base]));
     }
     Ok(mesh)
+}
+
+/// Every index of every face element (`v`, `v/vt`, `v//vn`, `v/vt/vn`; 1-based, or negative
+/// counting back from the last element read so far) refers to an element defined before it: the
+/// parser does not check this everywhere (a negative index past the list overflows inside it).
+fn check_obj_indices(bytes: &[u8]) -> Result<(), String> {
+    let mut counts = [0i64; 3]; // v, vt, vn
+    for (n, line) in bytes.split(|&b| b == b'\n').enumerate() {
+        let line = String::from_utf8_lossy(line);
+        let mut words = line.split_whitespace();
+        match words.next() {
+            Some("v") => counts[0] += 1,
+            Some("vt") => counts[1] += 1,
+            Some("vn") => counts[2] += 1,
+            Some("f") => {
+                for element in words {
+                    for (kind, index) in element.split('/').enumerate().take(3) {
+                        if index.is_empty() {
+                            continue;
+                        }
+                        let value: i64 = index
+                            .parse()
+                            .map_err(|_| format!("line {}: face index `{index}` is not a number", n + 1))?;
+                        let count = counts[kind];
+                        if value == 0 || value > count || value < -count {
+                            let what = ["vertex", "texture coordinate", "normal"][kind];
+                            return Err(format!(
+                                "line {}: face index {value} refers to no {what} ({count} defined before it)",
+                                n + 1
+                            ));
+                        }
+                    }
+                }
+            }
+            _ => {}
+        }
+    }
+    Ok(())
 }
 
 fn obj_bytes(mesh: &TriMesh) -> Vec<u8> {

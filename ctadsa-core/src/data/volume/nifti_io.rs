@@ -95,9 +95,7 @@ fn header_affine(h: &NiftiHeader) -> DMat4 {
 
 /// Reads a 3-D NIfTI volume as f32 (scaled by `scl_slope`/`scl_inter` as the file says).
 pub fn read_nifti(path: &Path) -> Result<Volume<f32>> {
-    if !path.exists() {
-        return Err(CoreError::io(path, std::io::Error::from(std::io::ErrorKind::NotFound)));
-    }
+    crate::error::check_input_file(path)?;
     let header = NiftiHeader::from_file(path)
         .map_err(|e| CoreError::format(path, format!("not a readable NIfTI-1 header: {e}")))?;
     let dims = check_header(path, &header)?;

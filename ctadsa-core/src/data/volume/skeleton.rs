@@ -206,7 +206,22 @@ fn trace(solid: &Volume<u8>, params: &SkeletonParams) -> VesselTree {
     let grid = solid.grid;
     let walker = Walker::new(grid.dims, grid.spacing_mm);
     let min_h = grid.spacing_mm.iter().copied().fold(f64::INFINITY, f64::min);
-    let dbf_all: Vec<f64> = squared_edt(solid).into_iter().map(f64::sqrt).collect();
+    // A voxel with no background voxel in the grid (a solid filling the box) takes its distance
+    // to the grid's faces instead, so that boundary distances stay finite and covering ends.
+    let extent2: f64 = (0..3).map(|a| (grid.dims[a] as f64 * grid.spacing_mm[a]).powi(2)).sum();
+    let dbf_all: Vec<f64> = squared_edt(solid)
+        .into_iter()
+        .enumerate()
+        .map(|(g, d2)| {
+            if d2.is_finite() && d2 <= extent2 {
+                return d2.sqrt();
+            }
+            let c = walker.coords(g);
+            (0..3)
+                .map(|a| ((c[a] + 1).min(grid.dims[a] as i64 - c[a]) as f64) * grid.spacing_mm[a])
+                .fold(f64::INFINITY, f64::min)
+        })
+        .collect();
     let (label, local, comps) = components(solid, &walker);
     let mut tree = VesselTree::default();
     for (id, voxels) in comps.into_iter().enumerate() {
@@ -289,7 +304,9 @@ fn cover(comp: &Component, walker: &Walker, dbf: &[f64], params: &SkeletonParams
     let radius = params.scale * dbf[u] + params.const_mm;
     let centre = walker.coords(comp.voxels[u]);
     let spacing = walker.spacing_mm;
-    let reach: Vec<i64> = spacing.iter().map(|h| (radius / h).floor() as i64).collect();
+    // At most the grid's extent: a radius that large covers every voxel anyway.
+    let reach: Vec<i64> =
+        spacing.iter().zip(walker.dims).map(|(h, n)| ((radius / h).floor() as i64).min(n as i64)).collect();
     for di in -reach[0]..=reach[0] {
         for dj in -reach[1]..=reach[1] {
             for dk in -reach[2]..=reach[2] {
@@ -357,6 +374,22 @@ mod tests {
         let mean = mid.iter().sum::<f64>() / mid.len() as f64;
         // Radii from the boundary distance on a 0.25 mm grid: within a voxel.
         assert!((mean - 2.0).abs() < 0.25, "radius {mean}");
+    }
+
+    /// A solid with no background voxel (a prior filling the working box): boundary distances
+    /// are taken to the grid's faces, and the trace ends (it ran for ever before).
+    #[test]
+    fn a_solid_filling_the_box_is_traced_in_finite_time() {
+        let bounds = BoxMm { min_mm: [0.0; 3], max_mm: [12.0, 8.0, 6.0] };
+        let grid = Grid::covering(&bounds, 0.5).unwrap();
+        let solid = Volume { grid, index_to_world: grid.index_to_world(), data: vec![1u8; grid.len()] };
+        let started = std::time::Instant::now();
+        let tree = skeletonize(&solid, &SkeletonParams::default());
+        assert!(!tree.nodes.is_empty(), "one tree for the block");
+        assert!(started.elapsed().as_secs() < 30, "took {:?}", started.elapsed());
+        for n in &tree.nodes {
+            assert!(n.radius_mm.is_finite() && n.radius_mm <= 4.0, "radius {} within the block", n.radius_mm);
+        }
     }
 
     #[test]
