@@ -53,8 +53,8 @@ fn tiny_case() -> &'static Case {
 struct History(Vec<StepLog>);
 
 impl Monitor for History {
-    fn stepped(&mut self, _: &Trainer, log: &StepLog) {
-        self.0.push(*log);
+    fn stepped(&mut self, _: &Trainer, logged: &[StepLog]) {
+        self.0.extend_from_slice(logged);
     }
 }
 
@@ -213,6 +213,9 @@ fn assert_resume_is_exact(cfg: Config, at: usize, tag: &str) {
     while resumed.iteration < total {
         resumed.step().unwrap();
     }
+    straight.flush_logs().unwrap();
+    resumed.flush_logs().unwrap();
+    assert_eq!(straight.history.len(), resumed.history.len(), "every step logged");
     for (x, y) in straight.history[at..].iter().zip(&resumed.history[at..]) {
         assert_eq!((x.loss, x.gaussians), (y.loss, y.gaussians), "iteration {}: straight vs resumed", x.iteration);
     }
@@ -284,6 +287,8 @@ fn checkpoint_with_the_padded_table_layout_resumes_exactly() {
         straight.step().unwrap();
         resumed.step().unwrap();
     }
+    straight.flush_logs().unwrap();
+    resumed.flush_logs().unwrap();
     for (x, y) in straight.history[6..].iter().zip(&resumed.history[6..]) {
         assert_eq!(x.loss, y.loss, "iteration {}: straight vs resumed from the padded layout", x.iteration);
     }
@@ -307,6 +312,7 @@ fn fused_adam_training_matches_burns_adam() {
         while t.iteration < 50 {
             t.step().unwrap();
         }
+        t.flush_logs().unwrap();
         (t.history.iter().map(|h| (h.loss, h.gaussians)).collect::<Vec<_>>(), t.host_gaussians())
     };
     let (fused, burn) = (trajectory(AdamImpl::Fused), trajectory(AdamImpl::Burn));
@@ -331,6 +337,8 @@ fn densification_grows_the_model_and_resumes_exactly() {
     while t.iteration < 40 {
         t.step().unwrap();
     }
+    t.flush_logs().unwrap();
+    assert_eq!(t.history.len(), 40, "every step logged");
     let grown = t.model().len();
     assert!(grown > n0 && grown <= 4000, "densification went from {n0} to {grown} Gaussians (cap 4000)");
     let first = t.history[0].loss;
@@ -430,7 +438,7 @@ impl Monitor for StopInMember {
     fn started(&mut self, _: &Trainer, _: &Config) {
         self.trainings += 1;
     }
-    fn stepped(&mut self, trainer: &Trainer, _: &StepLog) {
+    fn stepped(&mut self, trainer: &Trainer, _: &[StepLog]) {
         self.iteration = trainer.iteration;
     }
     fn should_stop(&self) -> bool {
@@ -513,6 +521,7 @@ fn no_ground_truth_steers_the_method() {
         while trainer.iteration < 30 {
             trainer.step().unwrap();
         }
+        trainer.flush_logs().unwrap();
         let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("tiny-{name}-{}", std::process::id()));
         let summary = write_outputs(&dir, c, &trainer, None).unwrap();
         // The working box comes from the views and the prior, yet holds the whole tree: it is

@@ -19,6 +19,7 @@ use ctadsa_render::cpu::{self, HostGaussians};
 use ctadsa_render::{ConeBeamView, Gaussians, RenderSettings, TigreGeometry, ViewSet, VoxelGrid};
 
 use crate::backend::BackendKind;
+use ctadsa_core::bench::TrainBenchSettings;
 
 #[derive(Args)]
 pub struct BenchArgs {
@@ -64,6 +65,10 @@ enum BenchWhat {
         /// Backend.
         #[arg(long, value_enum, default_value = "ndarray")]
         backend: BackendKind,
+        /// Further steps with every kernel launch timed on the device (wgpu; a table of device
+        /// time per kernel). Timing each launch slows the pass: these steps are timed apart.
+        #[arg(long, default_value_t = 0)]
+        device_timed_steps: usize,
     },
     /// One table of the training step for the configurations users run: the quick config on the
     /// demo case, and the paper's schedule (one 512² view per step, ~60k Gaussians) with the
@@ -266,12 +271,11 @@ fn bench_train(
     case: Option<std::path::PathBuf>,
     config: Option<std::path::PathBuf>,
     overrides: &[String],
-    steps: usize,
+    settings: TrainBenchSettings,
     backend: BackendKind,
 ) -> Result<()> {
     use ctadsa_core::config::Config;
     use ctadsa_core::data::case::Case;
-    use ctadsa_core::method::train::Trainer;
     let case_dir = match case {
         Some(d) => d,
         None => {
@@ -282,73 +286,76 @@ fn bench_train(
         }
     };
     let case = Case::load(&case_dir)?;
-    let mut cfg = match &config {
+    let cfg = match &config {
         Some(p) => Config::load(Some(p), overrides)?,
         None => Config::from_toml_str(crate::complete::QUICK_TOML, "configs/quick.toml", overrides)?,
     };
-    // Time steady-state steps: the prior-anchoring and false-negative terms are active for all
-    // but the first `pa_start` / `fn_start` iterations of a run (29,000 and 26,000 of the
-    // paper's 30,000), so they are switched on from the first timed step.
-    cfg.loss.pa_start = 0;
-    cfg.loss.fn_start = 0;
     let device = backend.device()?.autodiff();
-    let t0 = Instant::now();
-    let mut trainer = Trainer::new(&case, cfg.clone(), device)?;
-    let t_init = t0.elapsed().as_secs_f64();
-    for _ in 0..2 {
-        trainer.step()?;
-    }
-    let mut sum = ctadsa_core::method::train::StageTimes::default();
-    let start = Instant::now();
-    for _ in 0..steps.max(1) {
-        let t = trainer.step()?.times;
-        sum.field += t.field;
-        sum.render += t.render;
-        sum.losses += t.losses;
-        sum.backward += t.backward;
-        sum.optimizer += t.optimizer;
-    }
-    let per_step = start.elapsed().as_secs_f64() / steps.max(1) as f64;
-    let t_dens = Instant::now();
-    let plan = trainer.densify()?;
-    let t_dens = t_dens.elapsed().as_secs_f64();
-    let n = steps.max(1) as f64;
-    let (w, h) = trainer.views.image_size();
+    let r = ctadsa_core::bench::bench_train(&case, cfg.clone(), device, settings)?;
+    let (w, h) = case.views.image_size();
     println!(
-        "case {} ({} views of {w} × {h} px), config {}, {} Gaussians, hash table 2^{} × {} levels, {backend:?}, {} threads",
+        "case {} ({} views of {w} × {h} px before binning), config {}, {} Gaussians, hash table 2^{} × {} levels, {backend:?}, {} threads",
         case.file.name,
-        trainer.views.len(),
+        case.views.len(),
         config.as_ref().map_or("quick (built in)".to_string(), |p| p.display().to_string()),
-        trainer.model().len(),
+        r.gaussians,
         cfg.field.encoding.log2_table,
         cfg.field.encoding.levels,
         rayon::current_num_threads()
     );
-    println!(
-        "views rendered per step: {}",
-        if cfg.run.views_per_step == 0 { trainer.views.len() } else { cfg.run.views_per_step.min(trainer.views.len()) }
-    );
+    println!("views rendered per step: {}", r.views_per_step);
     println!();
     println!("| stage | ms per step |");
     println!("|---|---:|");
+    let s = r.stages;
     for (name, v) in [
-        ("field (hash grid + MLP)", sum.field),
-        ("render (forward)", sum.render),
-        ("losses (L1, SSIM, FN, PA)", sum.losses),
-        ("backward (all)", sum.backward),
-        ("optimiser (Adam)", sum.optimizer),
+        ("field (hash grid + MLP)", s.field),
+        ("render (forward)", s.render),
+        ("losses (L1, SSIM, FN, PA)", s.losses),
+        ("backward (all)", s.backward),
+        ("optimiser (Adam)", s.optimizer),
     ] {
-        println!("| {name} | {:.1} |", v / n * 1e3);
+        println!("| {name} | {:.1} |", v * 1e3);
     }
-    println!("| **total per step** | **{:.1}** |", per_step * 1e3);
+    println!("| **total per step** | **{:.1}** |", r.per_step_s * 1e3);
+    let p = &r.densify_plan;
     println!(
         "| densify (one call: {} cloned, {} split, {} pruned) | {:.1} |",
-        plan.cloned,
-        plan.split,
-        plan.pruned,
-        t_dens * 1e3
+        p.cloned,
+        p.split,
+        p.pruned,
+        r.densify_s * 1e3
     );
-    println!("| initialisation (once) | {:.0} |", t_init * 1e3);
+    println!("| initialisation (once) | {:.0} |", r.init_s * 1e3);
+    let n = r.steps as f64;
+    let t = r.transfers;
+    println!();
+    println!(
+        "device work per step: {:.1} kernel launches, {:.2} blocking reads ({:.0} bytes), {:.2} uploads ({:.0} bytes)",
+        r.launches.as_ref().map_or(0.0, |l| l.total() as f64 / n),
+        t.reads as f64 / n,
+        t.read_bytes as f64 / n,
+        t.uploads as f64 / n,
+        t.upload_bytes as f64 / n
+    );
+    if let Some(timed) = &r.device_timed {
+        let k = r.device_timed_steps.max(1) as f64;
+        println!();
+        println!(
+            "device time per kernel ({} steps, each launch timed on the device: {:.2} ms per step in all)",
+            r.device_timed_steps,
+            timed.total_device_time().as_secs_f64() * 1e3 / k
+        );
+        println!();
+        println!("| kernel | launches per step | device ms per step |");
+        println!("|---|---:|---:|");
+        let mut rows: Vec<(&String, &u64)> = timed.counts.iter().collect();
+        let time = |name: &str| timed.device_time.get(name).map_or(0.0, |d| d.as_secs_f64());
+        rows.sort_by(|a, b| time(b.0).total_cmp(&time(a.0)));
+        for (name, count) in rows {
+            println!("| {name} | {:.1} | {:.3} |", *count as f64 / k, time(name) * 1e3 / k);
+        }
+    }
     if let Some(m) = peak_rss_mib() {
         println!("\npeak resident memory: {m:.0} MiB");
     }
@@ -502,8 +509,8 @@ pub fn run(args: BenchArgs) -> Result<()> {
     match args.what {
         BenchWhat::Render { gaussians, size, repeats, backend } => bench_render(gaussians, size, repeats, backend),
         BenchWhat::Projector { voxels, size } => bench_projector(voxels, size),
-        BenchWhat::Train { case, config, overrides, steps, backend } => {
-            bench_train(case, config, &overrides, steps, backend)
+        BenchWhat::Train { case, config, overrides, steps, backend, device_timed_steps } => {
+            bench_train(case, config, &overrides, TrainBenchSettings { steps, device_timed_steps }, backend)
         }
         BenchWhat::TrainSuite { steps, backend } => crate::bench_suite::train_suite(steps, args.threads, backend),
     }

@@ -99,30 +99,37 @@ impl Monitor for Terminal {
         self.began = Instant::now();
     }
 
-    fn stepped(&mut self, trainer: &Trainer, log: &StepLog) {
-        let rate = (trainer.iteration - self.first) as f64 / self.began.elapsed().as_secs_f64().max(1e-9);
+    fn stepped(&mut self, trainer: &Trainer, logged: &[StepLog]) {
         self.pb.set_position(trainer.iteration as u64);
-        let msg = format!(
-            "loss {:.4} (L1 {:.4}, SSIM {:.3}, FN {:.4}, PA {:.4}) {} G, {:.1} it/s",
-            log.loss, log.l1, log.ssim, log.fn_loss, log.pa_loss, log.gaussians, rate
-        );
+        let rate = (trainer.iteration - self.first) as f64 / self.began.elapsed().as_secs_f64().max(1e-9);
+        let line = |log: &StepLog| {
+            format!(
+                "loss {:.4} (L1 {:.4}, SSIM {:.3}, FN {:.4}, PA {:.4}) {} G, {:.1} it/s",
+                log.loss, log.l1, log.ssim, log.fn_loss, log.pa_loss, log.gaussians, rate
+            )
+        };
         // Without a terminal the bar is hidden: log a line every 10% instead.
         let tenth = (self.iterations / 10).max(1);
-        if self.pb.is_hidden() && (trainer.iteration.is_multiple_of(tenth) || trainer.iteration == self.first + 1) {
-            let t = log.times;
-            eprintln!(
-                "[{:>6}/{}] {msg}; ms: field {:.0} render {:.0} losses {:.0} backward {:.0} optim {:.0} densify {:.0}",
-                trainer.iteration,
-                self.iterations,
-                t.field * 1e3,
-                t.render * 1e3,
-                t.losses * 1e3,
-                t.backward * 1e3,
-                t.optimizer * 1e3,
-                t.densify * 1e3
-            );
+        if self.pb.is_hidden() {
+            for log in logged.iter().filter(|l| l.iteration.is_multiple_of(tenth) || l.iteration == self.first + 1) {
+                let t = log.times;
+                eprintln!(
+                    "[{:>6}/{}] {}; ms: field {:.0} render {:.0} losses {:.0} backward {:.0} optim {:.0} densify {:.0}",
+                    log.iteration,
+                    self.iterations,
+                    line(log),
+                    t.field * 1e3,
+                    t.render * 1e3,
+                    t.losses * 1e3,
+                    t.backward * 1e3,
+                    t.optimizer * 1e3,
+                    t.densify * 1e3
+                );
+            }
         }
-        self.pb.set_message(msg);
+        if let Some(log) = logged.last() {
+            self.pb.set_message(line(log));
+        }
     }
 
     fn should_stop(&self) -> bool {

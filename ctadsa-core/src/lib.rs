@@ -8,6 +8,7 @@
 // `!(x >= y)` is our NaN-rejecting comparison idiom (NaN fails it); keep it.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
+pub mod bench;
 pub mod config;
 pub mod data;
 pub mod error;

@@ -82,7 +82,14 @@ fn bounded_scale_on_wgpu_matches_cpu() {
 #[test]
 fn fused_linear_on_wgpu_matches_cpu() {
     let Some(gpu) = wgpu_or_skip("fused linear") else { return };
-    let (n, i, o) = (97, 12, 8);
+    // Rows within one chunk of the weight-gradient sums, and over several with a partial last.
+    for n in [97, 600] {
+        fused_linear_matches_with(gpu.clone(), n);
+    }
+}
+
+fn fused_linear_matches_with(gpu: Device, n: usize) {
+    let (i, o) = (12, 8);
     let (x, wt, b, up) = (values(n * i, 3), values(i * o, 4), values(o, 5), values(n * o, 6));
     let run = |device: Device, act: Activation| {
         let device = device.autodiff();
@@ -99,10 +106,10 @@ fn fused_linear_on_wgpu_matches_cpu() {
             host_vec(b.grad(&grads).unwrap().reshape([1, o])),
         ]
     };
-    for act in [Activation::Relu, Activation::Softplus] {
+    for act in [Activation::Relu, Activation::Softplus, Activation::Identity] {
         let (a, b) = (run(Device::ndarray(), act), run(gpu.clone(), act));
         for (k, name) in ["output", "x", "weight", "bias"].iter().enumerate() {
-            assert_close(&format!("{name} ({act:?})"), &a[k], &b[k]);
+            assert_close(&format!("{name} ({act:?}, {n} rows)"), &a[k], &b[k]);
         }
     }
 }
@@ -129,4 +136,65 @@ fn ssim_on_wgpu_matches_cpu() {
     let scale = a.1.iter().fold(0.0f32, |m, q| m.max(q.abs()));
     let worst = a.1.iter().zip(&b.1).map(|(p, q)| (p - q).abs()).fold(0.0f32, f32::max);
     assert!(scale > 0.0 && worst <= 1e-3 * scale, "SSIM gradient: wgpu differs by {worst} (scale {scale})");
+}
+
+#[test]
+fn anchor_targets_on_wgpu_match_cpu() {
+    use ctadsa_core::method::anchor_op::grid::AnchorGrid;
+    use ctadsa_core::method::anchor_op::{DeviceGrid, anchor_targets};
+    let Some(gpu) = wgpu_or_skip("anchor search") else { return };
+    // Points on a tube of radius 1 mm along x, and queries around it.
+    let pts: Vec<[f64; 3]> = (0..4000)
+        .map(|i| {
+            let (t, a) = (i as f64 * 0.005 - 10.0, i as f64 * 2.399);
+            [t, a.cos(), a.sin()]
+        })
+        .collect();
+    let q = values(3 * 1500, 11).iter().map(|v| 2.0 * v).collect::<Vec<f32>>();
+    let grid = AnchorGrid::new(&pts, 0.5);
+    let run = |device: Device| {
+        let dg = DeviceGrid::new(&grid, 8, 0.5, &device);
+        let queries = Tensor::<2>::from_data(TensorData::new(q.clone(), [1500, 3]), &device);
+        let (t, k) = anchor_targets(queries, &dg);
+        (host_vec(t), host_vec(k))
+    };
+    let (a, b) = (run(Device::ndarray()), run(gpu));
+    assert_eq!(a.1, b.1, "anchored centres");
+    assert!(a.1.contains(&1.0) && a.1.contains(&0.0), "a mix of anchored and free centres");
+    assert_close("anchor targets", &a.0, &b.0);
+}
+
+/// The fused Adam kernel against the CPU loop: several steps, with and without the coupled L2
+/// penalty, from the first step's zero moments on.
+#[test]
+fn fused_adam_on_wgpu_matches_cpu() {
+    use burn::optim::Optimizer;
+    use ctadsa_core::method::optim::FusedAdam;
+    let Some(gpu) = wgpu_or_skip("fused Adam") else { return };
+    let n = 1000;
+    for decay in [None, Some(0.01)] {
+        let run = |device: Device| {
+            let adam = FusedAdam::new(1e-8).with_weight_decay(decay);
+            let mut p = Tensor::<1>::from_data(TensorData::new(values(n, 21), [n]), &device);
+            let mut state = None;
+            for step in 0..4u64 {
+                let g = Tensor::<1>::from_data(TensorData::new(values(n, 30 + step), [n]), &device);
+                let (next, s) = adam.step(1e-2, p, g, state);
+                p = next;
+                state = s;
+            }
+            let s = state.expect("state after a step");
+            (host_vec(p), host_vec(s.moment_1), host_vec(s.moment_2))
+        };
+        let (a, b) = (run(Device::ndarray()), run(gpu.clone()));
+        for (name, x, y) in [("parameter", &a.0, &b.0), ("first moment", &a.1, &b.1), ("second moment", &a.2, &b.2)] {
+            // Relative to the largest value (the moments are far below 1).
+            let scale = x.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+            let worst = x.iter().zip(y).map(|(p, q)| (p - q).abs()).fold(0.0f32, f32::max);
+            assert!(
+                scale > 0.0 && worst <= 1e-5 * scale,
+                "{name} ({decay:?}): wgpu differs by {worst} (scale {scale})"
+            );
+        }
+    }
 }

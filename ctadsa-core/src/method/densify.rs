@@ -35,6 +35,21 @@ impl DensifyStats {
         Self { sum: vec![0.0; n], count: vec![0.0; n] }
     }
 
+    /// The accumulators as a device tensor `[n, 2]` (sum, visible count), the layout of the
+    /// probe gradient, so that a step adds its gradient on the device.
+    pub fn to_tensor(&self, device: &Device) -> burn::tensor::Tensor<2> {
+        let n = self.sum.len().min(self.count.len());
+        let flat: Vec<f32> = (0..n).flat_map(|i| [self.sum[i], self.count[i]]).collect();
+        crate::method::readback::count_upload(flat.len());
+        burn::tensor::Tensor::from_data(burn::tensor::TensorData::new(flat, [n, 2]), device)
+    }
+
+    /// Accumulators from `[n·2]` values laid out as [`DensifyStats::to_tensor`].
+    pub fn from_interleaved(values: &[f32]) -> Self {
+        let (sum, count) = values.chunks_exact(2).map(|c| (c[0], c[1])).unzip();
+        Self { sum, count }
+    }
+
     /// Adds the probe gradient `[n·2]` (sum, visible count) of one step.
     pub fn add(&mut self, probe_grad: &[f32]) {
         for (i, c) in probe_grad.chunks_exact(2).enumerate() {

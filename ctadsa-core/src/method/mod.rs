@@ -2,6 +2,7 @@
 //! views and the prior, the working box, losses, densification, the optimiser, pose refinement
 //! and the training loop.
 
+pub mod anchor_op;
 pub mod blur_op;
 pub mod densify;
 pub mod field_health;
@@ -12,6 +13,7 @@ pub mod ndarray_host;
 pub mod optim;
 mod par_buffer;
 pub mod pose;
+pub mod readback;
 pub mod ssim_op;
 pub mod train;
 pub mod training_time;

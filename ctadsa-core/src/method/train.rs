@@ -25,10 +25,12 @@ use crate::data::mesh::sample::sample_surface;
 use crate::data::projector::correction::PoseCorrection;
 use crate::data::volume::BoxMm;
 use crate::error::{CoreError, Result, read_file, to_json, write_file};
+use crate::method::anchor_op::grid::AnchorGrid;
+use crate::method::anchor_op::{DeviceGrid, anchor_targets};
 use crate::method::densify::{self, DensifyStats};
 use crate::method::field_health::DensitySpread;
 use crate::method::init::initialise;
-use crate::method::loss::{LossTargets, PriorAnchor};
+use crate::method::loss::LossTargets;
 use crate::method::model::{GaussianInit, GaussianModel, ScaleBounds, host_vec};
 use crate::method::optim::FusedAdam;
 use crate::method::optim::state_edit::edit_state;
@@ -188,6 +190,15 @@ pub fn run_working_box(
     }
 }
 
+/// Refuses before training an output grid (`output.voxel_mm` over the working box) that the
+/// outputs could not be written on.
+fn check_output_grid(cfg: &Config, working_box: &BoxMm, case_voxel_mm: f64) -> Result<()> {
+    let voxel = if cfg.output.voxel_mm > 0.0 { cfg.output.voxel_mm } else { case_voxel_mm };
+    crate::data::volume::Grid::covering(working_box, voxel)
+        .map(|_| ())
+        .map_err(|e| CoreError::invalid(format!("config key `output.voxel_mm` = {voxel} mm: {e}")))
+}
+
 /// A training run in memory.
 pub struct Trainer {
     pub cfg: Config,
@@ -195,13 +206,25 @@ pub struct Trainer {
     pub views: ViewSet,
     pub images: Vec<Image>,
     targets: LossTargets,
-    anchor: Option<PriorAnchor>,
+    /// The prior-surface points for the anchoring term, on the device.
+    anchor: Option<DeviceGrid>,
     model: Option<GaussianModel>,
     /// Adam of the Gaussians' parameters (densification edits its state).
     optim: ModuleOptimizer,
     /// Adam of the opacity field (never edited: its 2 × 16.8 M moments at paper scale stay put).
     field_optim: ModuleOptimizer,
     pub stats: DensifyStats,
+    /// The densification statistics accumulated on the device since `stats` was last read
+    /// (`[N, 2]`: sum, visible count), started from `stats`; read back only when needed.
+    device_stats: Option<Tensor<2>>,
+    /// Steps whose loss values are still on the device (loss, L1, SSIM, FN, PA; `None`: a term
+    /// not computed, 0), read back together every [`Trainer::log_every`] steps.
+    pending_logs: Vec<(StepLog, [Option<Tensor<1>>; 5])>,
+    /// Steps between reads of the loss values (each read waits for the device; 1 reads every
+    /// step). The training itself does not depend on it.
+    pub log_every: usize,
+    /// Entries of `history` already handed out by [`Trainer::new_logs`].
+    announced: usize,
     /// The densities of the last step's field forward (detached; one Adam step behind the
     /// parameters), kept while densification is active so that a densify call reuses them
     /// instead of a second field forward (at paper scale the larger part of its cost).
@@ -217,6 +240,9 @@ pub struct Trainer {
     /// Per-view pose corrections and their optimizer (`[pose] enabled`).
     poses: Option<(ViewPoses, ModuleOptimizer)>,
 }
+
+/// Steps between reads of the loss values by default.
+pub const DEFAULT_LOG_EVERY: usize = 10;
 
 /// The Adam of the Gaussians and the Adam of the field (coupled L2 weight decay on the field).
 fn new_optimizers(cfg: &Config) -> (ModuleOptimizer, ModuleOptimizer) {
@@ -273,6 +299,7 @@ impl Trainer {
         let prior = case.prior_mesh()?;
         let working_box = run_working_box(case, &cfg, &views, &images, prior.as_ref())?;
         let voxel_mm = case.file.volume.voxel_mm;
+        check_output_grid(&cfg, &working_box, voxel_mm)?;
         let bounds = ScaleBounds::from_voxel(voxel_mm, cfg.model.scale_min_voxels, cfg.model.scale_max_voxels);
         let init = initialise(
             &cfg.init,
@@ -318,7 +345,12 @@ impl Trainer {
         let targets = LossTargets::new(&images, cfg.loss.fn_tau, &device);
         let anchor = prior.and_then(|p| {
             let n = ((p.area_mm2() / (0.05 * 0.05)) as usize).clamp(20_000, 400_000);
-            PriorAnchor::new(&sample_surface(p, n, cfg.run.seed ^ 0xA11C), cfg.loss.pa_radius_mm, cfg.loss.pa_k)
+            let points: Vec<[f64; 3]> =
+                sample_surface(p, n, cfg.run.seed ^ 0xA11C).iter().map(|v| v.to_array()).collect();
+            (!points.is_empty()).then(|| {
+                let grid = AnchorGrid::new(&points, cfg.loss.pa_radius_mm);
+                DeviceGrid::new(&grid, cfg.loss.pa_k, cfg.loss.pa_radius_mm, &device)
+            })
         });
         let n = model.len();
         let settings = RenderSettings { k_sigma: cfg.model.k_sigma };
@@ -339,6 +371,10 @@ impl Trainer {
             anchor,
             model: Some(model),
             stats: DensifyStats::new(n),
+            device_stats: None,
+            pending_logs: Vec::new(),
+            log_every: DEFAULT_LOG_EVERY,
+            announced: 0,
             last_densities: None,
             iteration: 0,
             history: Vec::new(),
@@ -423,8 +459,9 @@ impl Trainer {
     }
 
     /// The prior-anchor term at iteration `t` (mean squared distance of a random sample of
-    /// centres to the prior, for those near it), or `None` before `loss.pa_start` or when no
-    /// sampled centre is near the prior.
+    /// centres to the mean of their `loss.pa_k` nearest prior points, for those whose nearest is
+    /// within `loss.pa_radius_mm`; 0 when none is), or `None` before `loss.pa_start`. Found on
+    /// the device: nothing is read back.
     fn anchor_loss(&self, model: &GaussianModel, t: usize) -> Option<Tensor<1>> {
         let cfg = &self.cfg;
         let anchor = self.anchor.as_ref().filter(|_| t >= cfg.loss.pa_start && cfg.loss.pa_weight > 0.0)?;
@@ -433,19 +470,13 @@ impl Trainer {
         let m = if cfg.loss.pa_samples == 0 { n } else { cfg.loss.pa_samples.min(n) };
         let sample: Vec<i64> =
             if m == n { (0..n as i64).collect() } else { (0..m).map(|_| rng.random_range(0..n as i64)).collect() };
+        crate::method::readback::count_upload(m);
         let sel = Tensor::<1, Int>::from_data(TensorData::new(sample, [m]), &self.device);
         let chosen = model.means.val().select(0, sel);
-        let (keep, tgt) = anchor.targets(&host_vec(chosen.clone()));
-        if keep.is_empty() {
-            return None;
-        }
-        let k = keep.len();
-        let ki = Tensor::<1, Int>::from_data(
-            TensorData::new(keep.iter().map(|&i| i as i64).collect::<Vec<_>>(), [k]),
-            &self.device,
-        );
-        let target = Tensor::<2>::from_data(TensorData::new(tgt, [k, 3]), &self.device);
-        Some((chosen.select(0, ki) - target).powi_scalar(2).sum_dim(1).mean())
+        let (target, keep) = anchor_targets(chosen.clone(), anchor);
+        let squared = (chosen - target).powi_scalar(2).sum_dim(1).reshape([m]);
+        let anchored = keep.clone().sum().clamp_min(1.0);
+        Some((squared * keep).sum() / anchored)
     }
 
     /// The pose corrections' optimizer step at iteration `t` (from `pose.start` on).
@@ -467,8 +498,10 @@ impl Trainer {
         self.poses = Some((poses, optim));
     }
 
-    /// One optimisation step.
-    pub fn step(&mut self) -> Result<StepLog> {
+    /// One optimisation step; its stage times. Its loss values reach `history` when the logs
+    /// are next read (every [`Trainer::log_every`] steps, at a checkpoint, or
+    /// [`Trainer::flush_logs`]); a loss that is not finite is reported then.
+    pub fn step(&mut self) -> Result<StageTimes> {
         let cfg = self.cfg.clone();
         let t = self.iteration;
         let (lr, field_lr) = self.learning_rates();
@@ -487,27 +520,25 @@ impl Trainer {
         };
         times.field = clock.elapsed().as_secs_f64();
         let clock = Instant::now();
-        let probe = Tensor::<2>::zeros([model.len(), 2], &self.device).require_grad();
+        // Its values are never read (the renderer writes the statistics into its gradient).
+        let probe = Tensor::<2>::empty([model.len(), 2], &self.device).require_grad();
         let image = self.render_views(&gaussians, probe.clone(), &idx, &views)?;
         times.render = clock.elapsed().as_secs_f64();
         let clock = Instant::now();
         let (render_loss, l1, ssim) = targets.render_loss(image.clone(), cfg.loss.lambda_dssim);
         let mut loss = render_loss;
-        let mut fn_value = 0.0;
+        let mut fn_value = None;
         if t >= cfg.loss.fn_start && cfg.loss.fn_weight > 0.0 {
             let f = targets.fn_loss(image, cfg.loss.fn_margin);
-            fn_value = f.clone().into_scalar::<f32>() as f64;
+            fn_value = Some(f.clone().detach());
             loss = loss + f.mul_scalar(cfg.loss.fn_weight);
         }
-        let mut pa_value = 0.0;
+        let mut pa_value = None;
         if let Some(pa) = self.anchor_loss(model, t) {
-            pa_value = pa.clone().into_scalar::<f32>() as f64;
+            pa_value = Some(pa.clone().detach());
             loss = loss + pa.mul_scalar(cfg.loss.pa_weight);
         }
-        let loss_value = loss.clone().into_scalar::<f32>() as f64;
-        if !loss_value.is_finite() {
-            return Err(CoreError::invalid(format!("loss became {loss_value} at iteration {t}")));
-        }
+        let values = [Some(loss.clone().detach()), Some(l1.detach()), Some(ssim.detach()), fn_value, pa_value];
         times.losses = clock.elapsed().as_secs_f64();
         let clock = Instant::now();
         let mut grads = loss.backward();
@@ -516,7 +547,11 @@ impl Trainer {
         if self.densify_active()
             && let Some(g) = probe.grad(&grads)
         {
-            self.stats.add(&host_vec(g));
+            let sum = match self.device_stats.take() {
+                Some(s) => s,
+                None => self.stats.to_tensor(&self.device),
+            };
+            self.device_stats = Some(sum + g);
         }
         let field_grads = GradientsParams::from_module(&mut grads, &model.field);
         let gaussian_ids = [model.means.id, model.raw_scales.id, model.rotations.id];
@@ -535,22 +570,61 @@ impl Trainer {
             self.densify()?;
             times.densify = clock.elapsed().as_secs_f64();
         }
-        let log = StepLog {
-            iteration: self.iteration,
-            loss: loss_value,
-            l1: l1.into_scalar::<f32>() as f64,
-            ssim: ssim.into_scalar::<f32>() as f64,
-            fn_loss: fn_value,
-            pa_loss: pa_value,
-            gaussians: self.model().len(),
-            times,
-        };
-        self.history.push(log);
-        Ok(log)
+        let log = StepLog { iteration: self.iteration, gaussians: self.model().len(), times, ..StepLog::default() };
+        self.pending_logs.push((log, values));
+        if self.pending_logs.len() >= self.log_every.max(1) {
+            self.flush_logs()?;
+        }
+        Ok(times)
+    }
+
+    /// Reads the loss values of the steps not yet read (one read for all of them) into
+    /// `history`. An error names the first step whose loss is not finite.
+    pub fn flush_logs(&mut self) -> Result<()> {
+        if self.pending_logs.is_empty() {
+            return Ok(());
+        }
+        let pending = std::mem::take(&mut self.pending_logs);
+        let present: Vec<Tensor<1>> = pending.iter().flat_map(|(_, v)| v.iter().flatten().cloned()).collect();
+        let mut read = host_vec(Tensor::cat(present, 0)).into_iter();
+        for (log, values) in pending {
+            let [loss, l1, ssim, fn_loss, pa_loss] =
+                values.map(|v| v.map_or(0.0, |_| f64::from(read.next().unwrap_or(f32::NAN))));
+            if !loss.is_finite() {
+                return Err(CoreError::invalid(format!("loss became {loss} at iteration {}", log.iteration - 1)));
+            }
+            self.history.push(StepLog { loss, l1, ssim, fn_loss, pa_loss, ..log });
+        }
+        Ok(())
+    }
+
+    /// The steps logged since the last call, oldest first (steps are logged every
+    /// [`Trainer::log_every`] steps and by [`Trainer::flush_logs`]).
+    pub fn new_logs(&mut self) -> Vec<StepLog> {
+        let start = self.announced.min(self.history.len());
+        self.announced = self.history.len();
+        self.history[start..].to_vec()
+    }
+
+    /// Waits until the device has done all the work queued so far (a one-value read of the
+    /// centres, which the last optimiser step wrote).
+    pub fn sync(&self) {
+        let means = self.model().means.val();
+        if means.dims()[0] > 0 {
+            let _ = means.slice([0..1, 0..1]).into_data();
+        }
+    }
+
+    /// The densification statistics, read back from the device if they are there.
+    fn sync_stats(&mut self) {
+        if let Some(sum) = &self.device_stats {
+            self.stats = DensifyStats::from_interleaved(&host_vec(sum.clone()));
+        }
     }
 
     /// Densification now (clone, split, prune), keeping parameters and Adam moments consistent.
     pub fn densify(&mut self) -> Result<densify::DensifyPlan> {
+        self.sync_stats();
         let last_densities = self.last_densities.take();
         let model = self.model();
         let params = model.to_init();
@@ -586,6 +660,7 @@ impl Trainer {
         // Clones share the tensors; on an error the current model and optimizer stay as they are.
         let (model, optim) = densify::apply(model.clone(), self.optim.clone(), &plan, &self.device)?;
         self.stats = DensifyStats::new(model.len());
+        self.device_stats = None;
         self.model = Some(model);
         self.optim = optim;
         Ok(plan)
@@ -594,7 +669,9 @@ impl Trainer {
     /// Writes a checkpoint folder (model, optimizer, state); returns its path.
     /// The folder is written under a temporary name and renamed when complete, so a kill while
     /// saving leaves the previous checkpoints as they were.
-    pub fn save_checkpoint(&self, dir: &Path) -> Result<PathBuf> {
+    pub fn save_checkpoint(&mut self, dir: &Path) -> Result<PathBuf> {
+        self.flush_logs()?;
+        self.sync_stats();
         let done = dir.join(format!("ckpt-{:07}", self.iteration));
         let ck = dir.join(format!(".ckpt-{:07}.partial-{}", self.iteration, std::process::id()));
         if ck.exists() {
@@ -739,6 +816,7 @@ impl Trainer {
         }
         t.iteration = state.iteration;
         t.history = state.history;
+        t.announced = t.history.len();
         Ok(t)
     }
 

@@ -40,8 +40,9 @@ pub trait Monitor {
     fn note(&mut self, _line: &str) {}
     /// Training is about to start (or continue) at `trainer.iteration`.
     fn started(&mut self, _trainer: &Trainer, _cfg: &Config) {}
-    /// One step is done.
-    fn stepped(&mut self, _trainer: &Trainer, _log: &StepLog) {}
+    /// One step is done; `logged`: the steps whose loss values were read back since the last
+    /// call, oldest first (every `Trainer::log_every` steps, and at checkpoints).
+    fn stepped(&mut self, _trainer: &Trainer, _logged: &[StepLog]) {}
     /// Checked after every step: `true` saves a checkpoint and ends the run.
     fn should_stop(&self) -> bool {
         false
@@ -178,8 +179,9 @@ fn train(mut trainer: Trainer, cfg: &Config, out: &Path, monitor: &mut dyn Monit
     monitor.started(&trainer, cfg);
     let mut warned = false;
     while trainer.iteration < cfg.run.iterations {
-        let log = trainer.step()?;
-        monitor.stepped(&trainer, &log);
+        trainer.step()?;
+        let logged = trainer.new_logs();
+        monitor.stepped(&trainer, &logged);
         let every = cfg.run.checkpoint_every;
         if every > 0 && trainer.iteration.is_multiple_of(every) && trainer.iteration < cfg.run.iterations {
             trainer.save_checkpoint(&ck_dir)?;
@@ -190,6 +192,10 @@ fn train(mut trainer: Trainer, cfg: &Config, out: &Path, monitor: &mut dyn Monit
         }
     }
     trainer.save_checkpoint(&ck_dir)?;
+    let logged = trainer.new_logs();
+    if !logged.is_empty() {
+        monitor.stepped(&trainer, &logged);
+    }
     Ok(Trained::Done { trainer: Box::new(trainer), warned })
 }
 

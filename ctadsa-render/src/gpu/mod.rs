@@ -37,6 +37,11 @@ fn zeros(shape: Vec<usize>, like: &CubeTensor) -> CubeTensor {
     CubeBackend::float_zeros(Shape::from(shape), &like.device, FloatDType::F32)
 }
 
+/// An uninitialised tensor, for outputs a kernel writes whole (no fill launch).
+fn empty(shape: Vec<usize>, like: &CubeTensor) -> CubeTensor {
+    CubeBackend::float_empty(Shape::from(shape), &like.device, FloatDType::F32)
+}
+
 fn launch_dims(like: &CubeTensor, units: usize) -> (CubeCount, CubeDim) {
     let dim = CubeDim::new_1d(CUBE_UNITS);
     (cubecl::calculate_cube_count_elemwise(&like.client, units, dim), dim)
@@ -99,11 +104,12 @@ impl XrayBackend for CubeBackend {
         let (means, scales, rotations, densities, grad) =
             (prepare(means), prepare(scales), prepare(rotations), prepare(densities), prepare(grad_image));
         let n = means.shape()[0];
-        let g_means = zeros(vec![n, 3], &means);
-        let g_scales = zeros(vec![n, 3], &means);
-        let g_rotations = zeros(vec![n, 4], &means);
-        let g_densities = zeros(vec![n], &means);
-        let g_stats = zeros(vec![n, 2], &means);
+        // Every unit writes all of its Gaussian's gradients (zero where it sees no pixel).
+        let g_means = empty(vec![n, 3], &means);
+        let g_scales = empty(vec![n, 3], &means);
+        let g_rotations = empty(vec![n, 4], &means);
+        let g_densities = empty(vec![n], &means);
+        let g_stats = empty(vec![n, 2], &means);
         if n > 0 {
             let views = packed_views(&setup, &means);
             let (count, dim) = launch_dims(&means, n);

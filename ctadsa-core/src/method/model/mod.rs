@@ -81,14 +81,7 @@ pub struct GaussianModel {
     pub bounds: ScaleBounds,
 }
 
-/// A tensor's values on the host as f32.
-///
-/// Read through a detached, exact copy (`× 1`): burn-ndarray's `into_data` walks a tensor whose
-/// buffer is shared — every parameter, held by its `Param` — element by element through a
-/// dynamic-rank iterator (≈ 40 ns per value), while the copy is unique and moves out whole.
-pub fn host_vec<const D: usize>(t: Tensor<D>) -> Vec<f32> {
-    t.detach().mul_scalar(1.0).into_data().convert::<f32>().try_into_vec::<f32>().unwrap_or_default()
-}
+pub use crate::method::readback::host_vec;
 
 /// A `shape` tensor of values uniform in `±bound`, drawn from `seed` on the host (burn's own
 /// generator is global and shared by every thread, so it cannot make runs reproducible).

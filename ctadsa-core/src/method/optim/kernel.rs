@@ -1,11 +1,10 @@
-//! The fused Adam update as a burn backend op: one multi-threaded pass on NdArray, burn's own
-//! tensor expressions on CubeCL (where the passes run on the GPU).
+//! The fused Adam update as a burn backend op: one multi-threaded pass on NdArray, one kernel
+//! launch per parameter on CubeCL (`gpu.rs`).
 
 #![allow(deprecated)] // burn-ndarray is deprecated in burn 0.22 in favour of burn-flex.
 
 use burn::backend::{
-    Autodiff, AutodiffBackend, Backend, ExtensionType, NdArray, Scalar, TensorMetadata, backend_extension,
-    tensor::FloatTensor,
+    Autodiff, AutodiffBackend, Backend, ExtensionType, NdArray, TensorMetadata, backend_extension, tensor::FloatTensor,
 };
 use rayon::prelude::*;
 
@@ -167,31 +166,6 @@ impl FusedAdamBackend for NdArray {
     }
 }
 
-/// burn's Adam expressions on any backend's primitives (the GPU path).
-#[cfg(feature = "wgpu")]
-fn adam_tensor_ops<B: Backend>(
-    param: FloatTensor<B>,
-    grad: FloatTensor<B>,
-    moment_1: FloatTensor<B>,
-    moment_2: FloatTensor<B>,
-    c: AdamCoefficients,
-) -> AdamUpdate<B> {
-    let s = |v: f32| Scalar::Float(v as f64);
-    let grad = match c.weight_decay {
-        Some(l) => B::float_add(B::float_mul_scalar(param.clone(), s(l)), grad),
-        None => grad,
-    };
-    let m =
-        B::float_add(B::float_mul_scalar(moment_1, s(c.beta_1)), B::float_mul_scalar(grad.clone(), s(1.0 - c.beta_1)));
-    let g2 = B::float_mul(grad.clone(), grad);
-    let v = B::float_add(B::float_mul_scalar(moment_2, s(c.beta_2)), B::float_mul_scalar(g2, s(1.0 - c.beta_2)));
-    let (bc2_sqrt, combined) = c.bias_corrections();
-    let denom = B::float_add_scalar(B::float_sqrt(v.clone()), s(c.epsilon * bc2_sqrt));
-    let step = B::float_div(B::float_mul_scalar(m.clone(), s(combined)), denom);
-    let param = B::float_sub(param, B::float_mul_scalar(step, s(c.lr)));
-    AdamUpdate { param, moment_1: m, moment_2: v }
-}
-
 #[cfg(feature = "wgpu")]
 impl FusedAdamBackend for burn_cubecl::CubeBackend {
     fn adam_update(
@@ -201,7 +175,7 @@ impl FusedAdamBackend for burn_cubecl::CubeBackend {
         moment_2: FloatTensor<Self>,
         c: AdamCoefficients,
     ) -> AdamUpdate<Self> {
-        adam_tensor_ops::<Self>(param, grad, moment_1, moment_2, c)
+        super::gpu::adam_update(param, grad, moment_1, moment_2, c)
     }
 }
 

@@ -6,6 +6,8 @@
 //! fifteen full-size tensor passes. burn's `Adam` stays the reference (`optim.adam = "burn"`)
 //! and the test oracle.
 
+#[cfg(feature = "wgpu")]
+mod gpu;
 mod kernel;
 mod state;
 pub mod state_edit;

@@ -2,7 +2,8 @@
 //! with a hand-written backward: three window blurs forward, three backward, and per-pixel
 //! loops between them. Written with tensor operations (`loss::ssim_against_composed`, kept as
 //! the test oracle) it made about 25 autodiff nodes per call, each a pass over the image and a
-//! fresh buffer. Other backends compose their own primitive ops.
+//! fresh buffer. On CubeCL (wgpu) the op runs as the kernels of `gpu.rs` (checked against the
+//! CPU kernels by the wgpu parity tests).
 
 #![allow(deprecated)] // burn-ndarray is deprecated in burn 0.22 in favour of burn-flex.
 
@@ -86,8 +87,8 @@ impl SsimBackend for NdArray {
     }
 }
 
-#[cfg(any(feature = "wgpu", test))]
-mod composed;
+#[cfg(feature = "wgpu")]
+mod gpu;
 
 #[cfg(feature = "wgpu")]
 impl SsimBackend for burn_cubecl::CubeBackend {
@@ -97,7 +98,7 @@ impl SsimBackend for burn_cubecl::CubeBackend {
         mu_y: FloatTensor<Self>,
         syy: FloatTensor<Self>,
     ) -> (FloatTensor<Self>, FloatTensor<Self>) {
-        composed::forward::<Self>(x, y, mu_y, syy)
+        gpu::forward(x, y, mu_y, syy)
     }
 
     fn ssim_mean_backward(
@@ -108,7 +109,7 @@ impl SsimBackend for burn_cubecl::CubeBackend {
         stats: FloatTensor<Self>,
         grad: FloatTensor<Self>,
     ) -> FloatTensor<Self> {
-        composed::backward::<Self>(x, y, mu_y, syy, stats, grad)
+        gpu::backward(x, y, mu_y, syy, stats, grad)
     }
 }
 
@@ -221,42 +222,5 @@ mod tests {
                 assert!(d <= 1e-4 * scale, "[{v}, {h}, {w}] gradient differs by {d} (scale {scale})");
             }
         }
-    }
-
-    /// The path other backends take (their own primitive ops, run on NdArray's primitives)
-    /// gives the CPU kernels' results.
-    #[test]
-    fn composed_backend_path_matches_the_cpu_kernels() {
-        use crate::method::ndarray_host::host;
-        let (v, h, w) = (2, 19, 27);
-        let n = v * h * w;
-        let mut state = 11u64;
-        let mut values = |len: usize| -> Vec<f32> {
-            (0..len)
-                .map(|_| {
-                    state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-                    (state >> 40) as f32 / (1u64 << 24) as f32
-                })
-                .collect()
-        };
-        let (x, y) = (values(n), values(n));
-        let t = crate::method::blur_op::taps();
-        let mu_y = crate::method::blur_op::cpu::blur(&y, v, h, w, &t);
-        let yy: Vec<f32> = y.iter().map(|a| a * a).collect();
-        let syy: Vec<f32> =
-            crate::method::blur_op::cpu::blur(&yy, v, h, w, &t).iter().zip(&mu_y).map(|(e, m)| e - m * m).collect();
-        let device = burn::backend::ndarray::NdArrayDevice::Cpu;
-        let p = |d: &[f32]| NdArray::float_from_data(TensorData::new(d.to_vec(), [v, h, w]), &device);
-        let (mean, stats) = composed::forward::<NdArray>(p(&x), p(&y), p(&mu_y), p(&syy));
-        let stats_cpu = cpu::stats(&x, &y, v, h, w);
-        let mean_cpu = cpu::mean(&stats_cpu, &mu_y, &syy) as f32;
-        assert!((host::<NdArray>(mean)[0] - mean_cpu).abs() <= 1e-5);
-        assert!(worst(&host::<NdArray>(stats.clone()), &stats_cpu) <= 1e-5);
-        let grad = NdArray::float_from_data(TensorData::new(vec![2.5f32], [1]), &device);
-        let composed = host::<NdArray>(composed::backward::<NdArray>(p(&x), p(&y), p(&mu_y), p(&syy), stats, grad));
-        let kernel = cpu::backward(&x, &y, &mu_y, &syy, &stats_cpu, 2.5, v, h, w);
-        let scale = kernel.iter().fold(0.0f32, |m, v| m.max(v.abs()));
-        let d = worst(&composed, &kernel);
-        assert!(scale > 0.0 && d <= 1e-4 * scale, "gradient differs by {d} (scale {scale})");
     }
 }

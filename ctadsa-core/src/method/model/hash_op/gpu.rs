@@ -150,7 +150,8 @@ fn dims(c: &HashGridConfig, n: usize, like: &CubeTensor) -> (CubeCount, CubeDim)
 pub fn encode(u: CubeTensor, tables: CubeTensor, c: &HashGridConfig) -> CubeTensor {
     let (u, tables) = (prepare(u), prepare(tables));
     let n = u.shape()[0];
-    let out = CubeBackend::float_zeros(Shape::from(vec![n, c.output_dim()]), &u.device, FloatDType::F32);
+    // Written whole by the kernel.
+    let out = CubeBackend::float_empty(Shape::from(vec![n, c.output_dim()]), &u.device, FloatDType::F32);
     if n == 0 {
         return out;
     }
@@ -183,7 +184,8 @@ pub fn encode_backward(
     let (u, tables, grad) = (prepare(u), prepare(tables), prepare(grad));
     let n = u.shape()[0];
     let grad_tables = CubeBackend::float_zeros(tables.shape(), &u.device, FloatDType::F32);
-    let per_level = CubeBackend::float_zeros(Shape::from(vec![n, c.levels, 3]), &u.device, FloatDType::F32);
+    // Written whole by the kernel (one unit per point and level).
+    let per_level = CubeBackend::float_empty(Shape::from(vec![n, c.levels, 3]), &u.device, FloatDType::F32);
     if n > 0 {
         let meta = meta(c, &u);
         let (count, dim) = dims(c, n, &u);

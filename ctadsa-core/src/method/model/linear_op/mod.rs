@@ -2,22 +2,26 @@
 //! hand-written backward. On NdArray the matrix products run on strided views (burn-ndarray's
 //! autodiff matmul copies every transposed operand element by element, and its ReLU copies the
 //! tensor autodiff keeps): the opacity field's MLP costs a fraction of the composed ops at
-//! paper scale. Other backends compose their own primitive ops; `cpu::reference` (f64 loops)
-//! is the kernels' oracle and a test compares the op with burn's `Linear` + `relu` / `softplus`.
+//! paper scale. On CubeCL (wgpu) the backend's matmul runs with the bias, activation and
+//! gradient sums in kernels of their own (`gpu.rs`). `cpu::reference` (f64 loops) is the CPU
+//! kernels' oracle; a test compares the op with burn's `Linear` + `relu` / `softplus`, and the
+//! wgpu parity test the GPU path with the CPU kernels.
 
 #![allow(deprecated)] // burn-ndarray is deprecated in burn 0.22 in favour of burn-flex.
 
 pub mod cpu;
+#[cfg(feature = "wgpu")]
+mod gpu;
 
 use burn::backend::autodiff::checkpoint::{base::Checkpointer, strategy::CheckpointStrategy};
 use burn::backend::autodiff::grads::Gradients;
 use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
 use burn::backend::ops::FloatTensorOps;
 use burn::backend::{
-    Autodiff, AutodiffBackend, Backend, Dispatch, ExtensionType, FloatDType, NdArray, TensorMetadata,
-    backend_extension, tensor::FloatTensor,
+    Autodiff, AutodiffBackend, Backend, Dispatch, ExtensionType, NdArray, TensorMetadata, backend_extension,
+    tensor::FloatTensor,
 };
-use burn::tensor::{Shape, Tensor, TensorData};
+use burn::tensor::{Tensor, TensorData};
 
 use crate::method::ndarray_host::with_host;
 
@@ -127,83 +131,6 @@ impl LinearBackend for NdArray {
     }
 }
 
-/// The layer composed of a backend's own primitive ops (its matmul, broadcasting add, ReLU).
-#[cfg(any(feature = "wgpu", test))]
-fn composed_forward<B: Backend>(
-    x: FloatTensor<B>,
-    w: FloatTensor<B>,
-    b: FloatTensor<B>,
-    act: Activation,
-) -> FloatTensor<B> {
-    let o = w.shape()[1];
-    let z = B::float_add(B::float_matmul(x, w), B::float_reshape(b, Shape::new([1, o])));
-    match act {
-        Activation::Identity => z,
-        Activation::Relu => B::relu(z),
-        Activation::Softplus => {
-            let tail = B::float_log1p(B::float_exp(B::float_neg(B::float_abs(z.clone()))));
-            B::float_add(B::relu(z), tail)
-        }
-    }
-}
-
-#[cfg(any(feature = "wgpu", test))]
-fn composed_backward<B: Backend>(
-    x: FloatTensor<B>,
-    w: FloatTensor<B>,
-    y: FloatTensor<B>,
-    grad: FloatTensor<B>,
-    act: Activation,
-) -> LinearGrads<B> {
-    let (n, i, o) = (x.shape()[0], w.shape()[0], w.shape()[1]);
-    let gz = match act {
-        Activation::Identity => grad,
-        Activation::Relu => B::relu_backward(y, grad),
-        // `1 − e^(−y)`: the logistic of the pre-activation (exact to ≈ 6e-8 absolute for small
-        // `y`, where the CPU kernels use `expm1`).
-        Activation::Softplus => {
-            let one_minus = B::float_neg(B::float_add_scalar(B::float_exp(B::float_neg(y)), (-1f32).into()));
-            B::float_mul(grad, one_minus)
-        }
-    };
-    let grad_x = B::float_matmul(gz.clone(), B::float_transpose(w));
-    // The sums over the N rows go in two passes: partial sums over chunks of rows, then over
-    // the chunks. A backend without autotuning (CubeCL as built here) reduces an axis with one
-    // unit per output walking it serially, and multiplies with one cube per output tile: one
-    // pass over 100k rows would run on a handful of units.
-    let chunk = row_chunk(n);
-    let (x3, gz3) = (chunked::<B>(x, chunk), chunked::<B>(gz, chunk));
-    let partial_weight = B::float_matmul(B::float_swap_dims(x3, 1, 2), gz3.clone());
-    let partial_bias = B::float_sum_dim(gz3, 1);
-    LinearGrads {
-        weight: B::float_reshape(B::float_sum_dim(partial_weight, 0), Shape::new([i, o])),
-        x: grad_x,
-        bias: B::float_reshape(B::float_sum_dim(partial_bias, 0), Shape::new([o])),
-    }
-}
-
-/// Rows per partial sum of the composed backward: ⌊√N⌋, at least 64 (both passes then walk
-/// about √N elements per output).
-#[cfg(any(feature = "wgpu", test))]
-fn row_chunk(n: usize) -> usize {
-    n.isqrt().max(64)
-}
-
-/// `t` `[N, C]` as `[⌈N / chunk⌉, chunk, C]`, the last chunk padded with zero rows.
-#[cfg(any(feature = "wgpu", test))]
-fn chunked<B: Backend>(t: FloatTensor<B>, chunk: usize) -> FloatTensor<B> {
-    let (n, c) = (t.shape()[0], t.shape()[1]);
-    let chunks = n.div_ceil(chunk);
-    let pad = chunks * chunk - n;
-    let t = if pad > 0 {
-        let zeros = B::float_zeros(Shape::new([pad, c]), &t.device(), FloatDType::F32);
-        B::float_cat(vec![t, zeros], 0)
-    } else {
-        t
-    };
-    B::float_reshape(t, Shape::new([chunks, chunk, c]))
-}
-
 #[cfg(feature = "wgpu")]
 impl LinearBackend for burn_cubecl::CubeBackend {
     fn fused_linear(
@@ -212,7 +139,7 @@ impl LinearBackend for burn_cubecl::CubeBackend {
         bias: FloatTensor<Self>,
         act: Activation,
     ) -> FloatTensor<Self> {
-        composed_forward::<Self>(x, weight, bias, act)
+        gpu::forward(x, weight, bias, act)
     }
 
     fn fused_linear_backward(
@@ -222,7 +149,7 @@ impl LinearBackend for burn_cubecl::CubeBackend {
         grad: FloatTensor<Self>,
         act: Activation,
     ) -> LinearGrads<Self> {
-        composed_backward::<Self>(x, weight, output, grad, act)
+        gpu::backward(x, weight, output, grad, act)
     }
 }
 
@@ -356,50 +283,6 @@ mod tests {
                 (slope as f64 - slope_exact).abs() <= 1e-5 * slope_exact,
                 "slope at {z}: {slope}, not {slope_exact}"
             );
-        }
-    }
-
-    /// The composed path other backends take, run on NdArray's primitives, against the kernels:
-    /// row counts that fill whole chunks and that pad the last one.
-    #[test]
-    fn composed_path_matches_the_cpu_kernels() {
-        for n in [257, 4096, 5000] {
-            composed_path_matches_with(n);
-        }
-    }
-
-    fn composed_path_matches_with(n: usize) {
-        use crate::method::ndarray_host::host;
-        let (i, o) = (9, 5);
-        let mut s = 7u64;
-        let mut values = |len: usize| -> Vec<f32> {
-            (0..len)
-                .map(|_| {
-                    s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-                    (s >> 40) as f32 / (1u64 << 23) as f32 - 1.0
-                })
-                .collect()
-        };
-        let (x, w, b, g) = (values(n * i), values(i * o), values(o), values(n * o));
-        let device = burn::backend::ndarray::NdArrayDevice::Cpu;
-        let t = |v: &[f32], shape: Vec<usize>| NdArray::float_from_data(TensorData::new(v.to_vec(), shape), &device);
-        for act in [Activation::Relu, Activation::Identity, Activation::Softplus] {
-            let y = composed_forward::<NdArray>(t(&x, vec![n, i]), t(&w, vec![i, o]), t(&b, vec![o]), act);
-            let y_cpu = cpu::forward(&x, &w, &b, n, act);
-            let y_host = host::<NdArray>(y.clone());
-            let grads = composed_backward::<NdArray>(t(&x, vec![n, i]), t(&w, vec![i, o]), y, t(&g, vec![n, o]), act);
-            let (gx, gw, gb) = cpu::backward(&x, &w, &y_cpu, &g, n, o, act);
-            for (name, composed, kernel) in [
-                ("output", y_host, y_cpu.clone()),
-                ("x", host::<NdArray>(grads.x), gx),
-                ("weight", host::<NdArray>(grads.weight), gw),
-                ("bias", host::<NdArray>(grads.bias), gb),
-            ] {
-                assert_eq!(composed.len(), kernel.len(), "{name} (n = {n})");
-                let worst = composed.iter().zip(&kernel).map(|(p, q)| (p - q).abs()).fold(0.0f32, f32::max);
-                let scale = kernel.iter().fold(1.0f32, |m, v| m.max(v.abs()));
-                assert!(worst <= 1e-5 * scale, "{name} (n = {n}): worst difference {worst} (scale {scale})");
-            }
         }
     }
 }
