@@ -50,7 +50,13 @@ pub fn run(args: ExperimentArgs) -> Result<()> {
     let exp = Experiment::load(&args.matrix, &args.cases, &args.out, &args.overrides)?;
     if args.list {
         for (i, cell) in exp.cells.iter().enumerate() {
-            let state = if cell.finished().is_some() { "done" } else { "todo" };
+            let state = if cell.finished().is_some() {
+                "done"
+            } else if cell.stale() {
+                "stale (finished with another configuration: runs again)"
+            } else {
+                "todo"
+            };
             println!("{i}\t{state}\t{}\t{}", cell.label(), cell.dir.display());
         }
         return Ok(());

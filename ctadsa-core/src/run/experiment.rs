@@ -57,6 +57,10 @@ pub struct CellResult {
     pub seconds: f64,
     pub gaussians: usize,
     pub metrics: BTreeMap<String, Option<f64>>,
+    /// The cell's configuration when it ran ([`Cell::config_hash`]); a result of another
+    /// configuration (or of a version that did not record it) is not this cell's.
+    #[serde(default)]
+    pub config_hash: Option<String>,
 }
 
 /// One run of the matrix.
@@ -69,6 +73,9 @@ pub struct Cell {
     pub prior: Option<String>,
     /// `<out>/cells/<case>/<prior>/views-<list>/<method>`.
     pub dir: PathBuf,
+    /// A hash of the cell's whole configuration (method config, the matrix's and the caller's
+    /// overrides, its views), as TOML.
+    pub config_hash: String,
 }
 
 impl Cell {
@@ -83,11 +90,88 @@ impl Cell {
         )
     }
 
-    /// The cell's result when it has finished (a readable `cell.json`).
+    /// The cell's result when it has finished with its present configuration (a readable
+    /// `cell.json` of the same [`Cell::config_hash`]).
     pub fn finished(&self) -> Option<CellResult> {
         let bytes = std::fs::read(self.dir.join("cell.json")).ok()?;
-        serde_json::from_slice(&bytes).ok()
+        let result: CellResult = serde_json::from_slice(&bytes).ok()?;
+        (result.config_hash.as_deref() == Some(self.config_hash.as_str())).then_some(result)
     }
+
+    /// Whether a `cell.json` is there but of another configuration (rerun when run).
+    pub fn stale(&self) -> bool {
+        self.dir.join("cell.json").exists() && self.finished().is_none()
+    }
+}
+
+/// FNV-1a (64 bits) of `text`, as 16 hex digits: stable across builds and platforms.
+fn text_hash(text: &str) -> String {
+    let hash = text.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ b as u64).wrapping_mul(0x0100_0000_01b3));
+    format!("{hash:016x}")
+}
+
+/// Marks a cell as being run by this process (`cell.lock`, created exclusively); removed when
+/// dropped. A second process on the same cell (a requeued SLURM task beside the first, a matrix
+/// submitted twice) is refused instead of deleting the first one's checkpoints.
+struct CellLock {
+    path: PathBuf,
+}
+
+impl CellLock {
+    fn take(dir: &Path) -> Result<Self> {
+        use std::io::Write as _;
+        std::fs::create_dir_all(dir).map_err(|e| CoreError::io(dir, e))?;
+        let path = dir.join("cell.lock");
+        let holder = format!("pid {} on {}", std::process::id(), hostname());
+        for _ in 0..2 {
+            match std::fs::OpenOptions::new().write(true).create_new(true).open(&path) {
+                Ok(mut f) => {
+                    f.write_all(holder.as_bytes()).map_err(|e| CoreError::io(&path, e))?;
+                    return Ok(Self { path });
+                }
+                Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
+                    let other = std::fs::read_to_string(&path).unwrap_or_default();
+                    // A lock of a process of this machine that is gone (killed with SIGKILL) is
+                    // stale: taken over. Another machine's cannot be checked from here.
+                    if lock_is_stale(&other) {
+                        let _ = std::fs::remove_file(&path);
+                        continue;
+                    }
+                    return Err(CoreError::format(
+                        &path,
+                        format!(
+                            "the cell is being run by {} (remove this file if no such process runs)",
+                            if other.is_empty() { "another process".to_string() } else { other }
+                        ),
+                    ));
+                }
+                Err(e) => return Err(CoreError::io(&path, e)),
+            }
+        }
+        Err(CoreError::format(&path, "cannot take the cell's lock"))
+    }
+}
+
+impl Drop for CellLock {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.path);
+    }
+}
+
+fn hostname() -> String {
+    std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .map(|h| h.trim().to_string())
+        .ok()
+        .filter(|h| !h.is_empty())
+        .unwrap_or_else(|| "this machine".into())
+}
+
+/// Whether a lock reads `pid P on <this host>` for a process that no longer exists (Linux).
+fn lock_is_stale(text: &str) -> bool {
+    let Some(rest) = text.strip_prefix("pid ") else { return false };
+    let Some((pid, host)) = rest.split_once(" on ") else { return false };
+    let Ok(pid) = pid.parse::<u32>() else { return false };
+    host == hostname() && Path::new("/proc/self").exists() && !Path::new(&format!("/proc/{pid}")).exists()
 }
 
 /// A matrix over cases, with its cells in a fixed order (case, prior, views, method), so that a
@@ -182,12 +266,42 @@ impl Experiment {
         for p in &matrix.priors {
             check_file_name(p, "prior folder").map_err(bad)?;
         }
+        // Two entries of one name would run into one cell folder.
+        fn first_repeat<T: Ord + Clone>(items: impl IntoIterator<Item = T>) -> Option<T> {
+            let mut seen = BTreeSet::new();
+            items.into_iter().find(|i| !seen.insert(i.clone()))
+        }
+        if let Some(m) = first_repeat(matrix.methods.iter().map(|m| m.name.clone())) {
+            return Err(bad(format!("two methods are named `{m}`")));
+        }
+        if let Some(v) = first_repeat(matrix.views.iter().cloned()) {
+            return Err(bad(format!("the view subset {v:?} is listed twice")));
+        }
+        if let Some(p) = first_repeat(matrix.priors.iter().cloned()) {
+            return Err(bad(format!("the prior `{p}` is listed twice")));
+        }
         let matrix_dir = matrix_path.parent().unwrap_or(Path::new(".")).to_path_buf();
         let mut common = matrix.set.clone();
         common.extend(overrides.iter().cloned());
+        // Each (method, view subset)'s whole configuration, hashed: a cell's identity.
+        let mut config_hashes = BTreeMap::new();
         for m in &matrix.methods {
-            Config::load(Some(&matrix_dir.join(&m.config)), &[common.clone(), m.set.clone()].concat())
-                .map_err(|e| bad(format!("method {}: {e}", m.name)))?;
+            for views in &matrix.views {
+                let list = views.iter().map(|v| v.to_string()).collect::<Vec<_>>().join(",");
+                let overrides = [common.clone(), m.set.clone(), vec![format!("run.views=[{list}]")]].concat();
+                let cfg = Config::load(Some(&matrix_dir.join(&m.config)), &overrides)
+                    .map_err(|e| bad(format!("method {}: {e}", m.name)))?;
+                config_hashes.insert((m.name.clone(), views.clone()), text_hash(&cfg.to_toml()));
+            }
+        }
+        let case_names: Vec<String> = cases
+            .iter()
+            .map(|d| d.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_else(|| "case".into()))
+            .collect();
+        if let Some(name) = first_repeat(case_names.iter().cloned()) {
+            return Err(CoreError::invalid(format!(
+                "two cases are named `{name}` (the last part of their folder): their cells would share folders"
+            )));
         }
         let priors: Vec<Option<String>> =
             if matrix.priors.is_empty() { vec![None] } else { matrix.priors.iter().cloned().map(Some).collect() };
@@ -206,6 +320,7 @@ impl Experiment {
                             .join(prior.as_deref().unwrap_or("case"))
                             .join(format!("views-{tag}"))
                             .join(&method.name);
+                        let config_hash = config_hashes[&(method.name.clone(), views.clone())].clone();
                         cells.push(Cell {
                             case_dir: case_dir.clone(),
                             case_name: case_name.clone(),
@@ -213,6 +328,7 @@ impl Experiment {
                             views: views.clone(),
                             prior: prior.clone(),
                             dir,
+                            config_hash,
                         });
                     }
                 }
@@ -221,8 +337,10 @@ impl Experiment {
         Ok(Self { matrix, matrix_dir, common, cells, out: out.to_path_buf() })
     }
 
-    /// Runs cell `index` from scratch (an unfinished earlier attempt is overwritten) on `device`
-    /// (autodiff) and writes its `cell.json`. `None` when the monitor stopped it.
+    /// Runs cell `index` on `device` (autodiff) and writes its `cell.json`: continued from the
+    /// newest checkpoint an interrupted attempt with the same settings left (a SIGTERM'd SLURM
+    /// task, requeued), else from scratch. The cell is locked while it runs: a second process
+    /// on it is refused. `None` when the monitor stopped it.
     pub fn run_cell(&self, index: usize, device: Device, monitor: &mut dyn Monitor) -> Result<Option<CellResult>> {
         let cell = self.cells.get(index).ok_or_else(|| {
             CoreError::invalid(format!("cell {index} does not exist (the matrix has {} cells)", self.cells.len()))
@@ -237,8 +355,24 @@ impl Experiment {
         overrides.extend(cell.method.set.iter().cloned());
         overrides.push(format!("run.views=[{view_list}]"));
         let cfg = Config::load(Some(&self.matrix_dir.join(&cell.method.config)), &overrides)?;
+        let _lock = CellLock::take(&cell.dir)?;
         let start = Instant::now();
-        let summary = match run_completion(&case, cfg, device, &cell.dir, Start::Overwrite, monitor)? {
+        let attempted = !cell.dir.join("cell.json").exists()
+            && !crate::method::train::Trainer::checkpoints(&cell.dir.join("checkpoints")).is_empty();
+        let outcome = if attempted {
+            monitor.note(&format!("{}: continuing the interrupted attempt", cell.label()));
+            match run_completion(&case, cfg.clone(), device.clone(), &cell.dir, Start::Resume("latest"), monitor) {
+                Ok(outcome) => outcome,
+                Err(e) => {
+                    monitor.note(&format!("{}: cannot continue ({e}); starting again", cell.label()));
+                    run_completion(&case, cfg, device, &cell.dir, Start::Overwrite, monitor)?
+                }
+            }
+        } else {
+            remove_file_if_present(&cell.dir.join("cell.json"))?;
+            run_completion(&case, cfg, device, &cell.dir, Start::Overwrite, monitor)?
+        };
+        let summary = match outcome {
             Outcome::Finished(summary) => summary,
             Outcome::Interrupted { .. } => return Ok(None),
         };
@@ -252,6 +386,7 @@ impl Experiment {
             seconds: start.elapsed().as_secs_f64(),
             gaussians: summary.gaussians,
             metrics: cell_metrics(&summary),
+            config_hash: Some(cell.config_hash.clone()),
         };
         let path = cell.dir.join("cell.json");
         write_file(&path, to_json(&result, &path)?.as_bytes())?;
@@ -341,6 +476,23 @@ fn priors_of(results: &[CellResult]) -> Vec<String> {
 }
 
 /// One CSV row per cell (undefined metrics as `inf`).
+/// `field` as one CSV field (RFC 4180): quoted, with quotes doubled, when it holds a comma, a
+/// quote or a line break.
+fn csv_field(field: &str) -> String {
+    if field.contains([',', '"', '\n', '\r']) {
+        format!("\"{}\"", field.replace('"', "\"\""))
+    } else {
+        field.to_string()
+    }
+}
+
+fn remove_file_if_present(path: &Path) -> Result<()> {
+    match std::fs::remove_file(path) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(CoreError::io(path, e)),
+        _ => Ok(()),
+    }
+}
+
 pub fn results_csv(results: &[CellResult]) -> String {
     let keys: Vec<String> = results.first().map(|r| r.metrics.keys().cloned().collect()).unwrap_or_default();
     let mut csv =
@@ -351,12 +503,12 @@ pub fn results_csv(results: &[CellResult]) -> String {
             .map(|k| r.metrics.get(k).copied().flatten().map_or("inf".into(), |v| format!("{v:.4}")))
             .collect();
         csv += &format!(
-            "{},{},{},\"{}\",{},{},{:.1},{},{}\n",
-            r.case,
-            r.method,
+            "{},{},{},{},{},{},{:.1},{},{}\n",
+            csv_field(&r.case),
+            csv_field(&r.method),
             r.views,
-            r.view_list,
-            r.prior,
+            csv_field(&r.view_list),
+            csv_field(&r.prior),
             r.prior_threshold_mm.map_or(String::new(), |v| format!("{v}")),
             r.seconds,
             r.gaussians,
@@ -418,6 +570,7 @@ mod tests {
             seconds: 1.0,
             gaussians: 10,
             metrics: BTreeMap::from([("roi_cd_sum_mm".to_string(), cd_roi)]),
+            config_hash: None,
         }
     }
 
@@ -435,6 +588,59 @@ mod tests {
         let csv = results_csv(&rs);
         assert_eq!(csv.lines().count(), 4, "{csv}");
         assert!(csv.lines().nth(3).unwrap().ends_with(",inf"), "{csv}");
+    }
+
+    #[test]
+    fn csv_fields_with_commas_or_quotes_are_quoted() {
+        let rs = [result("case, left", "full \"x\"", 2, Some(2.0))];
+        let line = results_csv(&rs).lines().nth(1).unwrap().to_string();
+        assert!(line.starts_with("\"case, left\",\"full \"\"x\"\"\",2,\"0,1\",case,"), "{line}");
+    }
+
+    /// A matrix with two methods, views and cases of one name is refused (they would share cell
+    /// folders); a cell finished with another configuration is not finished; a cell held by a
+    /// live process is refused to a second one, a dead process's lock is taken over.
+    #[test]
+    fn duplicate_cells_stale_results_and_locks() {
+        let dir = std::env::temp_dir().join(format!("ctadsa-matrix-dup-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let config = concat!(env!("CARGO_MANIFEST_DIR"), "/../configs/quick.toml");
+        let write = |name: &str, text: String| {
+            let p = dir.join(name);
+            std::fs::write(&p, text).unwrap();
+            p
+        };
+        let method = |name: &str| format!("[[methods]]\nname = \"{name}\"\nconfig = \"{config}\"\n");
+        let twice = write("twice.toml", format!("views = [[0, 1]]\n{}{}", method("m"), method("m")));
+        let err = Experiment::load(&twice, &[], &dir.join("out"), &[]).unwrap_err().to_string();
+        assert!(err.contains("two methods are named `m`"), "{err}");
+        let views = write("views.toml", format!("views = [[0, 1], [0, 1]]\n{}", method("m")));
+        let err = Experiment::load(&views, &[], &dir.join("out"), &[]).unwrap_err().to_string();
+        assert!(err.contains("listed twice"), "{err}");
+        let good = write("good.toml", format!("views = [[0, 1]]\n{}", method("m")));
+        let cases = [dir.join("a/X"), dir.join("b/X")];
+        let err = Experiment::load(&good, &cases, &dir.join("out"), &[]).unwrap_err().to_string();
+        assert!(err.contains("two cases are named `X`"), "{err}");
+        // The configuration is part of a cell's identity.
+        let exp = Experiment::load(&good, &cases[..1], &dir.join("out"), &[]).unwrap();
+        let seeded = Experiment::load(&good, &cases[..1], &dir.join("out"), &["run.seed=7".into()]).unwrap();
+        assert_ne!(exp.cells[0].config_hash, seeded.cells[0].config_hash);
+        let cell = &exp.cells[0];
+        let mut r = result("X", "m", 2, Some(1.0));
+        r.config_hash = Some(cell.config_hash.clone());
+        std::fs::create_dir_all(&cell.dir).unwrap();
+        std::fs::write(cell.dir.join("cell.json"), serde_json::to_string(&r).unwrap()).unwrap();
+        assert!(cell.finished().is_some() && !cell.stale());
+        assert!(seeded.cells[0].finished().is_none() && seeded.cells[0].stale(), "another seed's result is stale");
+        // Locks.
+        let lock = CellLock::take(&cell.dir).unwrap();
+        let err = CellLock::take(&cell.dir).err().expect("a second holder is refused").to_string();
+        assert!(err.contains("cell.lock") && err.contains(&format!("pid {}", std::process::id())), "{err}");
+        drop(lock);
+        assert!(!cell.dir.join("cell.lock").exists(), "released");
+        std::fs::write(cell.dir.join("cell.lock"), format!("pid {} on {}", u32::MAX - 1, hostname())).unwrap();
+        drop(CellLock::take(&cell.dir).expect("a dead process's lock is taken over"));
+        std::fs::remove_dir_all(&dir).ok();
     }
 
     #[test]
