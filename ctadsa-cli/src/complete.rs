@@ -48,13 +48,22 @@ pub struct CompleteArgs {
 }
 
 /// Installs a handler for Ctrl-C (SIGINT), SIGTERM (what `timeout`, SLURM and `docker stop`
-/// send) and SIGHUP that raises a flag: the loop saves a checkpoint and stops, and the command
-/// exits non-zero.
+/// send) and SIGHUP. During training it raises a flag: the loop saves a checkpoint and stops,
+/// and the command exits non-zero. In every other phase (initialisation, outputs, skeleton,
+/// report), and on a second signal, the process exits at once with code 130: there is nothing
+/// to save there, and every file is written to a temporary name and renamed, so none is left
+/// half-written.
 fn interrupt_flag() -> Arc<AtomicBool> {
     let flag = Arc::new(AtomicBool::new(false));
     let f = flag.clone();
     // A second handler cannot be installed (e.g. in tests); the run then simply has none.
-    let _ = ctrlc::set_handler(move || f.store(true, Ordering::SeqCst));
+    let _ = ctrlc::set_handler(move || {
+        if ctadsa_core::run::completion::training_in_progress() && !f.swap(true, Ordering::SeqCst) {
+            return;
+        }
+        eprintln!("interrupted: stopping now (nothing of this phase to save)");
+        std::process::exit(130);
+    });
     flag
 }
 

@@ -152,6 +152,15 @@ pub fn run(args: SynthArgs) -> Result<()> {
                 .next()
                 .unwrap_or("tree")
                 .to_string();
+            if let Some((_, _, earlier)) = jobs.iter().find(|(_, name, _)| *name == stem) {
+                bail!(
+                    "{} and another tree in {} both map to the case folder {} (named up to the first `.`); \
+                     rename one",
+                    f.display(),
+                    dir.display(),
+                    earlier.display()
+                );
+            }
             jobs.push((Anatomy::Swc { path: f }, stem.clone(), args.out.join(stem)));
         }
     } else if let Some(t) = &args.tree {

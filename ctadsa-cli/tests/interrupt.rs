@@ -136,10 +136,17 @@ fn run_folder_is_protected_and_resume_falls_back_to_a_good_checkpoint() {
     let err = String::from_utf8_lossy(&bad.stderr);
     assert!(!bad.status.success() && !err.contains("panicked") && err.contains("state.json"), "{err}");
 
+    // --overwrite clears what the earlier run wrote (an output this run does not write again
+    // must not survive beside the new ones) and keeps what the user put in the folder.
+    std::fs::write(run.join("poses.json"), "{}").unwrap();
+    std::fs::write(run.join("mesh.stl"), "old").unwrap();
+    std::fs::write(run.join("notes.txt"), "mine").unwrap();
     let fresh = complete(2, &["--overwrite"]);
     assert!(fresh.status.success(), "{}", String::from_utf8_lossy(&fresh.stderr));
     assert!(!run.join("checkpoints/ckpt-0000006").exists(), "--overwrite leaves the old run's checkpoints");
     assert!(run.join("checkpoints/ckpt-0000002").exists());
+    assert!(!run.join("poses.json").exists() && !run.join("mesh.stl").exists(), "old outputs left beside the new");
+    assert_eq!(std::fs::read_to_string(run.join("notes.txt")).unwrap(), "mine", "a file of the user's removed");
 }
 
 /// SIGKILL gives no chance to save: the run resumes from its last periodic checkpoint (written

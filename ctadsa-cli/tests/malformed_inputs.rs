@@ -186,6 +186,7 @@ fn malformed_case_files_are_refused_and_nothing_escapes() {
         edited_case(&dir, "wrong-version", |j| j["version"] = 99.into()),
         edited_case(&dir, "no-views", |j| j["views"] = serde_json::json!([])),
         edited_case(&dir, "bad-geometry", |j| j["views"][0]["geometry"]["dso_mm"] = 0.0.into()),
+        edited_case(&dir, "duplicate-view-names", |j| j["views"][1]["name"] = j["views"][0]["name"].clone()),
     ];
     for case in &cases {
         refused(&dir, &["complete", "--case", case, "--config", &config, "--out", "out/run"], &["case.json"]);

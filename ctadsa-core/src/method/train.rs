@@ -84,6 +84,18 @@ struct CheckpointState {
     /// settings is refused (absent in checkpoints of older versions).
     #[serde(default)]
     training_settings: Option<String>,
+    /// The case the run belongs to ([`case_fingerprint`]); a resume on another case is refused
+    /// (absent in checkpoints of older versions).
+    #[serde(default)]
+    case: Option<String>,
+}
+
+/// The case's name and a hash of its `case.json` content (views, geometry, prior, volume).
+fn case_fingerprint(case: &Case) -> String {
+    let text = serde_json::to_string(&case.file).unwrap_or_default();
+    // FNV-1a, 64 bits: stable across builds and platforms.
+    let hash = text.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ b as u64).wrapping_mul(0x0100_0000_01b3));
+    format!("{} {hash:016x}", case.file.name)
 }
 
 /// The configuration less what may change on resume (`[output]`, `run.iterations`,
@@ -239,6 +251,8 @@ pub struct Trainer {
     pub settings: RenderSettings,
     /// Per-view pose corrections and their optimizer (`[pose] enabled`).
     poses: Option<(ViewPoses, ModuleOptimizer)>,
+    /// The case's [`case_fingerprint`], saved with every checkpoint.
+    case_fingerprint: String,
 }
 
 /// Steps between reads of the loss values by default.
@@ -326,7 +340,10 @@ impl Trainer {
             &device,
         );
         let model = GaussianModel::new(&init.gaussians, field, bounds, &device);
-        Self::assemble(cfg, device, views, images, prior.as_ref(), model, working_box, voxel_mm, init.n1, init.n2)
+        let mut trainer =
+            Self::assemble(cfg, device, views, images, prior.as_ref(), model, working_box, voxel_mm, init.n1, init.n2)?;
+        trainer.case_fingerprint = case_fingerprint(case);
+        Ok(trainer)
     }
 
     #[allow(clippy::too_many_arguments)]
@@ -383,6 +400,7 @@ impl Trainer {
             n1,
             n2,
             settings,
+            case_fingerprint: String::new(),
         })
     }
 
@@ -702,17 +720,25 @@ impl Trainer {
             history: self.history.clone(),
             working_box: Some(self.working_box),
             training_settings: Some(training_settings(&self.cfg)),
+            case: Some(self.case_fingerprint.clone()),
         };
         let state_path = ck.join("state.json");
         write_file(&state_path, to_json(&state, &state_path)?.as_bytes())?;
+        // A checkpoint of this iteration already there (a re-export saves the last one again)
+        // moves aside before the new one moves in, and is deleted only after: at every moment a
+        // complete checkpoint is listed by `checkpoints` (the moved one as a fallback).
+        let old = dir.join(format!(".ckpt-{:07}.old-{}", self.iteration, std::process::id()));
         if done.exists() {
-            std::fs::remove_dir_all(&done).map_err(|e| CoreError::io(&done, e))?;
+            std::fs::rename(&done, &old).map_err(|e| CoreError::io(&done, e))?;
         }
         std::fs::rename(&ck, &done).map_err(|e| CoreError::io(&done, e))?;
-        // Folders a killed process left half-written are never read; remove them.
+        // Folders a killed process left half-written are never read, and replaced ones are done
+        // with; remove them.
         for stale in std::fs::read_dir(dir).map_err(|e| CoreError::io(dir, e))?.flatten() {
             let name = stale.file_name();
-            if name.to_str().is_some_and(|n| n.starts_with(".ckpt-") && n.contains(".partial-")) {
+            let Some(name) = name.to_str() else { continue };
+            let replaced = name.starts_with(".ckpt-") && name.contains(".old-");
+            if (name.starts_with(".ckpt-") && name.contains(".partial-")) || replaced {
                 let _ = std::fs::remove_dir_all(stale.path());
             }
         }
@@ -738,6 +764,16 @@ impl Trainer {
                     ),
                 ));
             }
+        }
+        let fingerprint = case_fingerprint(case);
+        if let Some(saved) = state.case.as_ref().filter(|saved| **saved != fingerprint) {
+            return Err(CoreError::format(
+                &state_path,
+                format!(
+                    "this checkpoint belongs to another case (`{saved}`, this one is `{fingerprint}`: name and a \
+                     hash of case.json); resume with the run's case, or start a new run"
+                ),
+            ));
         }
         let (views, images) = prepare_views(case, &cfg)?;
         let prior = case.prior_mesh()?;
@@ -814,6 +850,7 @@ impl Trainer {
         if vals.len() == 2 * n {
             t.stats = DensifyStats { sum: vals[..n].to_vec(), count: vals[n..].to_vec() };
         }
+        t.case_fingerprint = fingerprint;
         t.iteration = state.iteration;
         t.history = state.history;
         t.announced = t.history.len();
@@ -821,17 +858,24 @@ impl Trainer {
     }
 
     /// The complete checkpoint folders under `dir` (`ckpt-` + iteration), newest first.
+    /// A checkpoint being replaced (`.ckpt-N.old-PID`, see [`Trainer::save_checkpoint`]) comes
+    /// after the complete one of its iteration, so that a kill between the two renames still
+    /// leaves one to resume from.
     pub fn checkpoints(dir: &Path) -> Vec<PathBuf> {
         let Ok(entries) = std::fs::read_dir(dir) else { return Vec::new() };
-        let mut cks: Vec<(usize, PathBuf)> = entries
+        let mut cks: Vec<(usize, bool, PathBuf)> = entries
             .filter_map(|e| e.ok().map(|e| e.path()))
             .filter_map(|p| {
-                let n: usize = p.file_name()?.to_str()?.strip_prefix("ckpt-")?.parse().ok()?;
-                p.join("state.json").exists().then_some((n, p))
+                let name = p.file_name()?.to_str()?;
+                let (n, current) = match name.strip_prefix("ckpt-") {
+                    Some(n) => (n.parse().ok()?, true),
+                    None => (name.strip_prefix(".ckpt-")?.split_once(".old-")?.0.parse().ok()?, false),
+                };
+                p.join("state.json").exists().then_some((n, current, p))
             })
             .collect();
         cks.sort();
-        cks.into_iter().rev().map(|(_, p)| p).collect()
+        cks.into_iter().rev().map(|(_, _, p)| p).collect()
     }
 
     /// Percentiles of the field's densities at the Gaussians' centres (one field forward).
@@ -921,9 +965,14 @@ mod tests {
     #[test]
     fn checkpoints_are_listed_newest_first_and_incomplete_ones_are_skipped() {
         let dir = std::env::temp_dir().join(format!("ctadsa-ckpts-{}", std::process::id()));
-        for (name, complete) in
-            [("ckpt-0000100", true), ("ckpt-0000020", true), ("ckpt-0000300", false), (".ckpt-0000400.partial-9", true)]
-        {
+        for (name, complete) in [
+            ("ckpt-0000100", true),
+            ("ckpt-0000020", true),
+            ("ckpt-0000300", false),
+            (".ckpt-0000400.partial-9", true),
+            (".ckpt-0000100.old-9", true),
+            (".ckpt-0000500.old-9", true),
+        ] {
             std::fs::create_dir_all(dir.join(name)).unwrap();
             if complete {
                 std::fs::write(dir.join(name).join("state.json"), "{}").unwrap();
@@ -931,7 +980,9 @@ mod tests {
         }
         let names: Vec<String> =
             Trainer::checkpoints(&dir).iter().map(|p| p.file_name().unwrap().to_string_lossy().into()).collect();
-        assert_eq!(names, ["ckpt-0000100", "ckpt-0000020"]);
+        // A replaced checkpoint (moved aside while its successor moves in) is a fallback after
+        // the current one of its iteration.
+        assert_eq!(names, [".ckpt-0000500.old-9", "ckpt-0000100", ".ckpt-0000100.old-9", "ckpt-0000020"]);
         assert!(Trainer::checkpoints(&dir.join("absent")).is_empty());
         std::fs::remove_dir_all(&dir).ok();
     }

@@ -65,6 +65,26 @@ pub fn holds_run(out: &Path) -> bool {
         || !Trainer::checkpoints(&out.join(MEMBER_DIR).join("checkpoints")).is_empty()
 }
 
+/// The files and folders (besides `mesh*.{obj,ply,stl}`, the checkpoints and the member's
+/// folder) that a run writes into its folder; `--overwrite` removes them.
+const RUN_OUTPUTS: [&str; 15] = [
+    "summary.json",
+    "report.html",
+    "config.toml",
+    "density.nii.gz",
+    "gaussians.ply",
+    "renders",
+    "loss.png",
+    "loss.csv",
+    "mesh.png",
+    "mesh-completion.png",
+    "centreline.swc",
+    "centreline.vtp",
+    "centreline.png",
+    "poses.json",
+    "checkpoints",
+];
+
 fn remove(path: &Path) -> Result<()> {
     let removed = if path.is_dir() {
         std::fs::remove_dir_all(path)
@@ -94,7 +114,15 @@ pub fn start_trainer(
         ))),
         Start::Fresh => Trainer::new(case, cfg.clone(), device),
         Start::Overwrite => {
-            remove(&out.join("summary.json"))?;
+            // Everything an earlier run wrote here, and nothing else the folder may hold.
+            for name in RUN_OUTPUTS {
+                remove(&out.join(name))?;
+            }
+            for format in ["obj", "ply", "stl"] {
+                for stem in ["mesh", "mesh-raw", "mesh-extracted"] {
+                    remove(&out.join(format!("{stem}.{format}")))?;
+                }
+            }
             remove(&ck_dir)?;
             remove(&out.join(MEMBER_DIR))?;
             Trainer::new(case, cfg.clone(), device)
@@ -165,6 +193,32 @@ pub fn run_completion(
     Ok(Outcome::Finished(Box::new(summary)))
 }
 
+/// Whether a training loop runs (then a stop request saves a checkpoint between steps; in
+/// every other phase — initialisation, outputs, skeleton, report — there is nothing to save,
+/// and a caller's signal handler may end the process at once).
+static TRAINING: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+/// Whether a training loop of this process runs now (see `TRAINING`).
+pub fn training_in_progress() -> bool {
+    TRAINING.load(std::sync::atomic::Ordering::SeqCst)
+}
+
+/// Marks a training loop for its lifetime.
+struct TrainingPhase;
+
+impl TrainingPhase {
+    fn start() -> Self {
+        TRAINING.store(true, std::sync::atomic::Ordering::SeqCst);
+        Self
+    }
+}
+
+impl Drop for TrainingPhase {
+    fn drop(&mut self) {
+        TRAINING.store(false, std::sync::atomic::Ordering::SeqCst);
+    }
+}
+
 /// How [`train`] ended.
 enum Trained {
     /// All iterations done, the last checkpoint saved; `warned`: the collapse warning was given.
@@ -177,6 +231,7 @@ enum Trained {
 fn train(mut trainer: Trainer, cfg: &Config, out: &Path, monitor: &mut dyn Monitor) -> Result<Trained> {
     let ck_dir = out.join("checkpoints");
     monitor.started(&trainer, cfg);
+    let _phase = TrainingPhase::start();
     let mut warned = false;
     while trainer.iteration < cfg.run.iterations {
         trainer.step()?;

@@ -240,8 +240,14 @@ impl CaseFile {
             return Err(CoreError::format(path, "the case has no views"));
         }
         check_file_name(&file.name, "case name").map_err(|e| CoreError::format(path, e))?;
+        let mut names = std::collections::BTreeSet::new();
         for v in &file.views {
             check_file_name(&v.name, "view name").map_err(|e| CoreError::format(path, e))?;
+            // Outputs are named after the view (renders/<name>.png): two of one name would
+            // overwrite each other's.
+            if !names.insert(v.name.to_ascii_lowercase()) {
+                return Err(CoreError::format(path, format!("two views are named `{}`", v.name)));
+            }
         }
         for v in &file.views {
             if let Some(s) = v.png_scale
