@@ -8,7 +8,7 @@
 
 pub mod cpu;
 #[cfg(feature = "wgpu")]
-mod gpu;
+pub(crate) mod gpu;
 
 use burn::backend::autodiff::checkpoint::{base::Checkpointer, strategy::CheckpointStrategy};
 use burn::backend::autodiff::grads::Gradients;
@@ -45,7 +45,7 @@ impl BlurBackend for NdArray {
 #[cfg(feature = "wgpu")]
 impl BlurBackend for burn_cubecl::CubeBackend {
     fn window_blur(images: FloatTensor<Self>) -> FloatTensor<Self> {
-        gpu::blur(images, &taps())
+        gpu::blur(images)
     }
 }
 
@@ -106,6 +106,13 @@ mod tests {
 
     /// A constant image far from the border keeps its value (the taps sum to 1), and an impulse
     /// spreads into the outer product of the taps.
+    /// The GPU kernels' taps are the CPU kernels' to the last bit.
+    #[cfg(feature = "wgpu")]
+    #[test]
+    fn the_gpu_taps_are_the_window() {
+        assert_eq!(gpu::HALF_TAPS.as_slice(), &taps()[5..]);
+    }
+
     #[test]
     fn blur_of_an_impulse_is_the_window() {
         let (h, w) = (15, 17);

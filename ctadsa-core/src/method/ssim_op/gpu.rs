@@ -17,34 +17,8 @@ use burn_cubecl::tensor::CubeTensor;
 use burn_cubecl::{CubeBackend, cubecl};
 
 use super::cpu::{C1, C2};
-use crate::method::blur_op::taps;
+use crate::method::blur_op::gpu::tap;
 use crate::method::model::hash_op::gpu::prepare;
-
-/// Tap `k` (0..11) of the symmetric window `t0` (centre) … `t5`.
-#[cube]
-#[allow(clippy::too_many_arguments)]
-fn tap(k: u32, t0: f32, t1: f32, t2: f32, t3: f32, t4: f32, t5: f32) -> f32 {
-    let off = select(k >= 5u32, k - 5u32, 5u32 - k);
-    let mut t = t5;
-    if off == 0u32 {
-        t = t0;
-    } else if off == 1u32 {
-        t = t1;
-    } else if off == 2u32 {
-        t = t2;
-    } else if off == 3u32 {
-        t = t3;
-    } else if off == 4u32 {
-        t = t4;
-    }
-    t
-}
-
-/// The window's taps as launch arguments: the centre and one side.
-fn half_taps() -> [f32; 6] {
-    let t = taps();
-    [5, 6, 7, 8, 9, 10].map(|k| t[k])
-}
 
 /// `(a1, a2, b1, b2)` with SSIM = `a1·a2 / (b1·b2)`, as `cpu::terms`.
 #[cube]
@@ -60,20 +34,7 @@ fn terms(mu_x: f32, exx: f32, exy: f32, mu_y: f32, syy: f32) -> (f32, f32, f32, 
 
 /// Forward (1): `rows[0..3][p]` = window sums along W of `x`, `x²`, `x·y` at pixel `p`.
 #[cube(launch)]
-#[allow(clippy::too_many_arguments)]
-fn ssim_rows_kernel(
-    x: &Tensor<f32>,
-    y: &Tensor<f32>,
-    rows: &mut Tensor<f32>,
-    pixels: u32,
-    w: u32,
-    t0: f32,
-    t1: f32,
-    t2: f32,
-    t3: f32,
-    t4: f32,
-    t5: f32,
-) {
+fn ssim_rows_kernel(x: &Tensor<f32>, y: &Tensor<f32>, rows: &mut Tensor<f32>, pixels: u32, w: u32) {
     let id = ABSOLUTE_POS;
     if id >= pixels as usize {
         terminate!();
@@ -86,7 +47,7 @@ fn ssim_rows_kernel(
         let kk = k as usize;
         if col + kk >= 5usize && col + kk < (w as usize) + 5usize {
             let src = id + kk - 5usize;
-            let t = tap(k, t0, t1, t2, t3, t4, t5);
+            let t = tap(k);
             let xv = x[src];
             sx += t * xv;
             sxx += t * (xv * xv);
@@ -100,7 +61,6 @@ fn ssim_rows_kernel(
 
 /// Forward (2): along H, the statistics `stats[0..3][p]` and the SSIM map.
 #[cube(launch)]
-#[allow(clippy::too_many_arguments)]
 fn ssim_cols_kernel(
     rows: &Tensor<f32>,
     mu_y: &Tensor<f32>,
@@ -110,12 +70,6 @@ fn ssim_cols_kernel(
     pixels: u32,
     h: u32,
     w: u32,
-    t0: f32,
-    t1: f32,
-    t2: f32,
-    t3: f32,
-    t4: f32,
-    t5: f32,
 ) {
     let id = ABSOLUTE_POS;
     if id >= pixels as usize {
@@ -131,7 +85,7 @@ fn ssim_cols_kernel(
         let kk = k as usize;
         if row + kk >= 5usize && row + kk < (h as usize) + 5usize {
             let src = id + kk * step - 5usize * step;
-            let t = tap(k, t0, t1, t2, t3, t4, t5);
+            let t = tap(k);
             mu += t * rows[src];
             exx += t * rows[src + p];
             exy += t * rows[src + 2 * p];
@@ -160,7 +114,6 @@ fn partials(stats: &Tensor<f32>, mu_y: &Tensor<f32>, syy: &Tensor<f32>, q: usize
 
 /// Backward (1): along W, window sums of the three partials.
 #[cube(launch)]
-#[allow(clippy::too_many_arguments)]
 fn ssim_grad_rows_kernel(
     stats: &Tensor<f32>,
     mu_y: &Tensor<f32>,
@@ -168,12 +121,6 @@ fn ssim_grad_rows_kernel(
     rows: &mut Tensor<f32>,
     pixels: u32,
     w: u32,
-    t0: f32,
-    t1: f32,
-    t2: f32,
-    t3: f32,
-    t4: f32,
-    t5: f32,
 ) {
     let id = ABSOLUTE_POS;
     if id >= pixels as usize {
@@ -188,7 +135,7 @@ fn ssim_grad_rows_kernel(
         let kk = k as usize;
         if col + kk >= 5usize && col + kk < (w as usize) + 5usize {
             let src = id + kk - 5usize;
-            let t = tap(k, t0, t1, t2, t3, t4, t5);
+            let t = tap(k);
             let (d_mu, d_exx, d_exy) = partials(stats, mu_y, syy, src, p);
             g_mu += t * d_mu;
             g_xx += t * d_exx;
@@ -202,7 +149,6 @@ fn ssim_grad_rows_kernel(
 
 /// Backward (2): along H, and the gradient with respect to `x`.
 #[cube(launch)]
-#[allow(clippy::too_many_arguments)]
 fn ssim_grad_cols_kernel(
     rows: &Tensor<f32>,
     x: &Tensor<f32>,
@@ -212,12 +158,6 @@ fn ssim_grad_cols_kernel(
     pixels: u32,
     h: u32,
     w: u32,
-    t0: f32,
-    t1: f32,
-    t2: f32,
-    t3: f32,
-    t4: f32,
-    t5: f32,
 ) {
     let id = ABSOLUTE_POS;
     if id >= pixels as usize {
@@ -233,7 +173,7 @@ fn ssim_grad_cols_kernel(
         let kk = k as usize;
         if row + kk >= 5usize && row + kk < (h as usize) + 5usize {
             let src = id + kk * step - 5usize * step;
-            let t = tap(k, t0, t1, t2, t3, t4, t5);
+            let t = tap(k);
             g_mu += t * rows[src];
             g_xx += t * rows[src + p];
             g_xy += t * rows[src + 2 * p];
@@ -264,7 +204,6 @@ pub fn forward(x: CubeTensor, y: CubeTensor, mu_y: CubeTensor, syy: CubeTensor) 
         let mean = CubeBackend::float_zeros(Shape::from(vec![1]), &x.device, FloatDType::F32);
         return (mean, stats);
     }
-    let [t0, t1, t2, t3, t4, t5] = half_taps();
     let dim = CubeDim::new_1d(256);
     let count = cubecl::calculate_cube_count_elemwise(&x.client, pixels, dim);
     ssim_rows_kernel::launch(
@@ -276,12 +215,6 @@ pub fn forward(x: CubeTensor, y: CubeTensor, mu_y: CubeTensor, syy: CubeTensor) 
         rows.clone().into_tensor_arg(),
         pixels as u32,
         w as u32,
-        t0,
-        t1,
-        t2,
-        t3,
-        t4,
-        t5,
     );
     ssim_cols_kernel::launch(
         &x.client,
@@ -295,12 +228,6 @@ pub fn forward(x: CubeTensor, y: CubeTensor, mu_y: CubeTensor, syy: CubeTensor) 
         pixels as u32,
         h as u32,
         w as u32,
-        t0,
-        t1,
-        t2,
-        t3,
-        t4,
-        t5,
     );
     let mean = CubeBackend::float_reshape(CubeBackend::float_mean(map), Shape::new([1]));
     (mean, stats)
@@ -324,7 +251,6 @@ pub fn backward(
         return out;
     }
     let rows = empty(vec![3 * v, h, w], &x);
-    let [t0, t1, t2, t3, t4, t5] = half_taps();
     let dim = CubeDim::new_1d(256);
     let count = cubecl::calculate_cube_count_elemwise(&x.client, pixels, dim);
     ssim_grad_rows_kernel::launch(
@@ -337,12 +263,6 @@ pub fn backward(
         rows.clone().into_tensor_arg(),
         pixels as u32,
         w as u32,
-        t0,
-        t1,
-        t2,
-        t3,
-        t4,
-        t5,
     );
     ssim_grad_cols_kernel::launch(
         &x.client,
@@ -356,12 +276,6 @@ pub fn backward(
         pixels as u32,
         h as u32,
         w as u32,
-        t0,
-        t1,
-        t2,
-        t3,
-        t4,
-        t5,
     );
     out
 }
