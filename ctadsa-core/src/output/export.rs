@@ -152,7 +152,9 @@ fn write_renders(dir: &Path, case: &Case, trainer: &Trainer, renders: &[Vec<f32>
                 px(2, if d > 0.0 { [255, m, m] } else { [m, m, 255] }, &mut rgb);
             }
         }
-        let f = (256 / w.max(1)).max(1);
+        // Small detectors are enlarged to ≈ 256 px wide, never past 4,096 px tall (a 1 × 65,536
+        // detector would otherwise ask for a 38 GB picture).
+        let f = (256 / w.max(1)).min(4096 / h.max(1)).max(1);
         let (big_w, big_h) = (3 * w * f, h * f);
         let mut big = vec![0u8; 3 * big_w * big_h];
         for y in 0..big_h {

@@ -6,32 +6,59 @@ use rayon::prelude::*;
 use super::TriMesh;
 use crate::data::volume::{Grid, Volume};
 
+/// Column bins hold at most this many triangle entries (4 bytes each) in all.
+const MAX_BIN_ENTRIES: usize = 1 << 27;
+
 /// Marks (1) the voxels of `grid` whose centres lie inside the closed mesh.
 pub fn voxelize_mesh(mesh: &TriMesh, grid: Grid) -> Volume<u8> {
     let mut vol = Volume::<u8>::zeros(grid);
     let [nx, ny, nz] = grid.dims;
     let h = grid.spacing_mm;
-    // Bin triangles by the columns (i, j) their xy-bounding box covers.
-    let mut bins: Vec<Vec<u32>> = vec![Vec::new(); nx * ny];
+    // Each triangle's range of columns (i, j) its xy-bounding box covers (empty when outside).
     let col = |v: f64, a: usize| ((v - grid.origin_mm[a]) / h[a] - 0.5).floor();
-    for (t, f) in mesh.faces.iter().enumerate() {
-        let [a, b, c] = f.map(|i| mesh.vertices[i as usize]);
-        let (i0, i1) = (col(a.x.min(b.x).min(c.x), 0), col(a.x.max(b.x).max(c.x), 0) + 1.0);
-        let (j0, j1) = (col(a.y.min(b.y).min(c.y), 1), col(a.y.max(b.y).max(c.y), 1) + 1.0);
-        let (i0, i1) = (i0.max(0.0) as usize, (i1.min(nx as f64 - 1.0)).max(-1.0));
-        let (j0, j1) = (j0.max(0.0) as usize, (j1.min(ny as f64 - 1.0)).max(-1.0));
-        if i1 < 0.0 || j1 < 0.0 {
-            continue;
-        }
-        for i in i0..=i1 as usize {
-            for j in j0..=j1 as usize {
-                bins[i * ny + j].push(t as u32);
+    let ranges: Vec<Option<[usize; 4]>> = mesh
+        .faces
+        .iter()
+        .map(|f| {
+            let [a, b, c] = f.map(|i| mesh.vertices[i as usize]);
+            let (i0, i1) = (col(a.x.min(b.x).min(c.x), 0), col(a.x.max(b.x).max(c.x), 0) + 1.0);
+            let (j0, j1) = (col(a.y.min(b.y).min(c.y), 1), col(a.y.max(b.y).max(c.y), 1) + 1.0);
+            let (i0, i1) = (i0.max(0.0), i1.min(nx as f64 - 1.0));
+            let (j0, j1) = (j0.max(0.0), j1.min(ny as f64 - 1.0));
+            (i1 >= i0 && j1 >= j0).then(|| [i0 as usize, i1 as usize, j0 as usize, j1 as usize])
+        })
+        .collect();
+    // Bin triangles by column, unless the bins would be too large (many triangles as wide as the
+    // grid: slivers of a crafted mesh): then each column tests every triangle's range instead,
+    // slower but without memory that grows with triangles × columns.
+    let entries: f64 = ranges.iter().flatten().map(|r| ((r[1] - r[0] + 1) * (r[3] - r[2] + 1)) as f64).sum();
+    let bins: Option<Vec<Vec<u32>>> = (entries <= MAX_BIN_ENTRIES as f64).then(|| {
+        let mut bins: Vec<Vec<u32>> = vec![Vec::new(); nx * ny];
+        for (t, r) in ranges.iter().enumerate() {
+            let Some([i0, i1, j0, j1]) = *r else { continue };
+            for i in i0..=i1 {
+                for j in j0..=j1 {
+                    bins[i * ny + j].push(t as u32);
+                }
             }
         }
-    }
+        bins
+    });
     vol.data.par_chunks_mut(nz).enumerate().for_each(|(column, out)| {
         let (i, j) = (column / ny, column % ny);
-        let tris = &bins[column];
+        let scanned: Vec<u32>;
+        let tris: &[u32] = match &bins {
+            Some(bins) => &bins[column],
+            None => {
+                scanned = (0..ranges.len() as u32)
+                    .filter(|&t| {
+                        ranges[t as usize]
+                            .is_some_and(|[i0, i1, j0, j1]| (i0..=i1).contains(&i) && (j0..=j1).contains(&j))
+                    })
+                    .collect();
+                &scanned
+            }
+        };
         if tris.is_empty() {
             return;
         }
@@ -70,6 +97,31 @@ pub fn voxelize_mesh(mesh: &TriMesh, grid: Grid) -> Volume<u8> {
 mod tests {
     use super::*;
     use crate::data::mesh::marching::extract_isosurface;
+
+    /// Thousands of triangles as wide as the grid (a crafted prior of slivers) would need
+    /// triangles × columns bin entries (2.6 GB here): the column scan runs instead, with the
+    /// same answer as the bins on a mesh both can take.
+    #[test]
+    fn grid_wide_slivers_do_not_allocate_per_column() {
+        let grid = Grid { dims: [400, 400, 4], spacing_mm: [0.25; 3], origin_mm: [0.0; 3] };
+        let mut mesh = TriMesh::default();
+        for t in 0..1700 {
+            let y = 0.05 * t as f64;
+            let base = mesh.vertices.len() as u32;
+            mesh.vertices.extend([
+                glam::DVec3::new(0.0, y, 0.5),
+                glam::DVec3::new(100.0, y + 0.01, 0.5),
+                glam::DVec3::new(0.0, 100.0 - y, 0.6),
+            ]);
+            mesh.faces.push([base, base + 1, base + 2]);
+        }
+        let entries: usize = 1700 * 400 * 400;
+        assert!(entries > MAX_BIN_ENTRIES, "the test exercises the scan");
+        let started = std::time::Instant::now();
+        let vol = voxelize_mesh(&mesh, grid);
+        assert_eq!(vol.data.len(), 400 * 400 * 4);
+        assert!(started.elapsed().as_secs() < 60, "{:?}", started.elapsed());
+    }
 
     #[test]
     fn sphere_mesh_voxelizes_to_its_volume() {
