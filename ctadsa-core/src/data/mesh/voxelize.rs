@@ -25,7 +25,7 @@ pub fn voxelize_mesh(mesh: &TriMesh, grid: Grid) -> Volume<u8> {
             let (j0, j1) = (col(a.y.min(b.y).min(c.y), 1), col(a.y.max(b.y).max(c.y), 1) + 1.0);
             let (i0, i1) = (i0.max(0.0), i1.min(nx as f64 - 1.0));
             let (j0, j1) = (j0.max(0.0), j1.min(ny as f64 - 1.0));
-            (i1 >= i0 && j1 >= j0).then(|| [i0 as usize, i1 as usize, j0 as usize, j1 as usize])
+            (i1 >= i0 && j1 >= j0).then_some([i0 as usize, i1 as usize, j0 as usize, j1 as usize])
         })
         .collect();
     // Bin triangles by column, unless the bins would be too large (many triangles as wide as the
