@@ -95,6 +95,12 @@ fn completion_recovers_the_missing_vessels() {
         "the completed surface must be much closer to the truth than the prior alone"
     );
     check_centreline(&s, "tiny-run");
+    // The field's topology scores are in every summary of a case with a true tree.
+    let t = s.topology.expect("topology scores");
+    eprintln!("tiny topology: {t:?}");
+    assert!(t.cl_dice > 0.3 && t.cl_dice <= 1.0, "clDice {}", t.cl_dice);
+    assert!(t.components >= 1 && t.true_components >= 1);
+    assert_eq!(t.betti0_error, t.components.abs_diff(t.true_components));
 }
 
 /// The run's centreline: SWC that the project's reader reads back node for node, VTK PolyData

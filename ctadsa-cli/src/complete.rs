@@ -204,6 +204,13 @@ pub fn print_summary(summary: &RunSummary, out: &Path) {
             );
         }
     }
+    if let Some(t) = &summary.topology {
+        println!(
+            "  topology: clDice {:.3} (topology precision {:.3}, sensitivity {:.3}), {} components against {} \
+             (Betti-0 error {})",
+            t.cl_dice, t.topology_precision, t.topology_sensitivity, t.components, t.true_components, t.betti0_error
+        );
+    }
     let (Some(m), Some(p)) = (&summary.metrics, &summary.prior_metrics) else {
         println!("  (no ground truth in the case: no metrics)");
         return;

@@ -8,3 +8,4 @@ pub mod metrics;
 pub mod new_surface;
 pub mod score;
 pub mod surface_metrics;
+pub mod topology;

@@ -24,6 +24,7 @@ use crate::error::{Result, to_json, write_file};
 use crate::eval::metrics::RegionScores;
 use crate::eval::score::{CaseTruth, EvalOptions};
 use crate::eval::surface_metrics::Coverage;
+use crate::eval::topology::{TopologyScores, topology_scores};
 use crate::method::field_health::DensitySpread;
 use crate::method::model::host_vec;
 use crate::method::train::{StepLog, Trainer};
@@ -77,6 +78,9 @@ pub struct RunSummary {
     pub prior_coverage: Option<Coverage>,
     /// The completed centreline (`centreline.swc` / `.vtp`) and its scores against the true tree.
     pub centreline: CentrelineSummary,
+    /// clDice and the Betti-0 error of the completed volume against the true one
+    /// ([`crate::eval::topology`]), when the case has a true tree.
+    pub topology: Option<TopologyScores>,
     /// With pose refinement on a case whose true view corrections are known: how far each
     /// refined view is from the truth.
     pub pose_errors: Option<Vec<PoseError>>,
@@ -232,7 +236,8 @@ pub fn write_outputs(dir: &Path, case: &Case, trainer: &Trainer, member: Option<
     let surface = extract_completed_surface(dir, trainer, &volume, prior.as_ref())?;
     let mesh = &surface.mesh;
     let truth = CaseTruth::load(case)?;
-    let centreline = write_centreline_of(dir, &volume, &surface, prior.as_ref(), &cfg.output, truth.as_ref())?;
+    let (centreline, topology) =
+        write_centreline_of(dir, &volume, &surface, prior.as_ref(), &cfg.output, truth.as_ref())?;
     let renders = trainer.render_all()?;
     write_renders(dir, case, trainer, &renders)?;
     write_loss(dir, &trainer.history)?;
@@ -272,6 +277,7 @@ pub fn write_outputs(dir: &Path, case: &Case, trainer: &Trainer, member: Option<
         prior_metrics: prior_scored.as_ref().map(|r| r.scores),
         prior_coverage: prior_scored.as_ref().map(|r| r.coverage),
         centreline,
+        topology,
         pose_errors,
     };
     let summary_path = dir.join("summary.json");
@@ -402,7 +408,7 @@ fn write_centreline_of(
     prior: Option<&TriMesh>,
     out: &OutputConfig,
     truth: Option<&CaseTruth>,
-) -> Result<CentrelineSummary> {
+) -> Result<(CentrelineSummary, Option<TopologyScores>)> {
     let above_level = completed_solid(surface.field.as_ref().unwrap_or(volume), surface.field_level, None);
     let voxelised;
     let prior_voxels = match (&surface.kept_prior, prior) {
@@ -422,8 +428,22 @@ fn write_centreline_of(
         ..SkeletonParams::default()
     };
     let tree = completed_centreline(extracted, prior_part, surface.kept_prior.is_some(), &params);
+    // The completed volume (inside the extracted surface, islands dropped as in the mesh, and the
+    // prior's voxels where it is kept) against the voxels inside the true surface, both on the
+    // density's grid (vessels thinner than its voxels break up alike in both), with the two
+    // centrelines as skeletons.
+    let topology = truth.and_then(|t| t.centreline.as_deref().map(|skeleton| (t, skeleton))).map(|(t, skeleton)| {
+        let mut completed = crate::data::mesh::voxelize::voxelize_mesh(&surface.extracted, volume.grid);
+        if let Some(prior) = prior_voxels {
+            for (c, &p) in completed.data.iter_mut().zip(&prior.data) {
+                *c |= p;
+            }
+        }
+        let true_solid = crate::data::mesh::voxelize::voxelize_mesh(&t.complete, volume.grid);
+        topology_scores(&completed, &true_solid, &tree.segments(), skeleton)
+    });
     let truth = truth.and_then(|t| t.missing_centreline.as_deref().zip(t.centreline.as_deref()));
-    write_centreline(dir, &tree, truth)
+    Ok((write_centreline(dir, &tree, truth)?, topology))
 }
 
 /// `loss.csv` and `loss.png` (log scale; a term is drawn where it is positive).

@@ -252,6 +252,21 @@ fn metrics(html: &mut String, summary: &Value) {
         metrics_rows(html, "prior alone", &summary["prior_metrics"]);
     }
     html.push_str("</table><p>Definitions: docs/METRICS.md (CD sum = the paper's convention); ∞: the surface has no point in that region.</p>");
+    let t = &summary["topology"];
+    if !t.is_null() {
+        let _ = write!(
+            html,
+            "<table><tr><th>clDice</th><th>topology precision</th><th>topology sensitivity</th><th>components</th>\
+             <th>true components</th><th>Betti-0 error</th></tr><tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td>\
+             <td>{}</td><td>{}</td></tr></table>",
+            num(&t["cl_dice"]),
+            num(&t["topology_precision"]),
+            num(&t["topology_sensitivity"]),
+            text(&t["components"]),
+            text(&t["true_components"]),
+            text(&t["betti0_error"])
+        );
+    }
 }
 
 /// The centreline graph: lengths, scores against the true tree, and the found / missed picture.
@@ -350,6 +365,7 @@ mod tests {
             "metrics": {"overall": {"cd_mean_mm": evil, "cd_sum_mm": evil, "hd95_mm": evil, "hd_mm": evil}},
             "centreline": {"nodes": evil, "length_mm": evil, "new_length_mm": evil, "scores": {"recall": evil}},
             "pose_errors": [{"view": evil, "reprojection_before_px": evil}],
+            "topology": {"cl_dice": evil, "components": evil, "true_components": [evil], "betti0_error": {"x": evil}},
         });
         std::fs::write(dir.join("summary.json"), summary.to_string()).unwrap();
         let poses = serde_json::json!({"views": [{"name": evil, "rotation_deg": [evil], "translation_mm": evil}]});

@@ -242,6 +242,10 @@ fn cell_metrics(summary: &RunSummary) -> BTreeMap<String, Option<f64>> {
         metrics.insert("centreline_precision".into(), finite(c.precision));
         metrics.insert("centreline_radius_error_mm".into(), finite(c.radius_error_mm));
     }
+    if let Some(t) = &summary.topology {
+        metrics.insert("cl_dice".into(), finite(t.cl_dice));
+        metrics.insert("betti0_error".into(), Some(t.betti0_error as f64));
+    }
     // The untouched prior mesh, scored the same way, for comparison.
     let p = summary.prior_metrics.as_ref();
     put(&mut metrics, "untouched_prior_", p.map(|m| &m.overall));
