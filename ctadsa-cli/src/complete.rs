@@ -1,5 +1,6 @@
 //! `ctadsa complete` and `ctadsa demo`: run the shape completion on a case folder.
 
+use std::io::Write as _;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -61,7 +62,9 @@ fn interrupt_flag() -> Arc<AtomicBool> {
         if ctadsa_core::run::completion::training_in_progress() && !f.swap(true, Ordering::SeqCst) {
             return;
         }
-        eprintln!("interrupted: stopping now (nothing of this phase to save)");
+        // Not eprintln!: it panics when stderr is closed (a pipe whose reader is gone), and the
+        // process would then not stop.
+        let _ = writeln!(std::io::stderr(), "interrupted: stopping now (nothing of this phase to save)");
         std::process::exit(130);
     });
     flag

@@ -187,3 +187,37 @@ fn checkpoints_in(dir: &std::path::Path) -> usize {
         })
         .unwrap_or(0)
 }
+
+/// SIGTERM after training, while the outputs are written (here made long by many metric
+/// samples): nothing is left to checkpoint, so the process ends at once with code 130 instead of
+/// finishing the phase.
+#[test]
+fn sigterm_while_writing_outputs_ends_the_process_at_once() {
+    let (case, run) = (tmp("term-out-case"), tmp("term-out-run"));
+    small_case(&case);
+    let mut child = complete_cmd(&case, &run, 2, 0, (300, 200), &["--set", "output.metric_samples=10000000"])
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let stderr = BufReader::new(child.stderr.take().unwrap());
+    let mut seen = String::new();
+    for line in stderr.lines() {
+        let line = line.unwrap();
+        seen += &line;
+        seen.push('\n');
+        // The last step's log line: training is over, the outputs begin.
+        if line.starts_with('[') && line.contains("2/2]") {
+            break;
+        }
+    }
+    std::thread::sleep(std::time::Duration::from_millis(500));
+    let sent = std::time::Instant::now();
+    let kill = Command::new("kill").args(["-TERM", &child.id().to_string()]).status().unwrap();
+    assert!(kill.success());
+    let status = child.wait().unwrap();
+    let waited = sent.elapsed();
+    assert_eq!(status.code(), Some(130), "exit status {status:?}; log:\n{seen}");
+    assert!(waited.as_secs() < 10, "took {waited:?} to stop");
+    assert!(!run.join("summary.json").exists(), "the outputs were not finished");
+    assert_eq!(checkpoints_in(&run.join("checkpoints")), 1, "the final checkpoint stays");
+}
