@@ -59,6 +59,27 @@ fn ssim_rows_kernel(x: &Tensor<f32>, y: &Tensor<f32>, rows: &mut Tensor<f32>, pi
     rows[id + 2 * pixels as usize] = sxy;
 }
 
+/// The window sums along H at pixel `id` of the three planes of `rows` (`p` pixels each).
+#[cube]
+fn window_along_h(rows: &Tensor<f32>, id: usize, p: usize, h: u32, w: u32) -> (f32, f32, f32) {
+    let row = (id / (w as usize)) % (h as usize);
+    let step = w as usize;
+    let mut a = 0.0f32;
+    let mut b = 0.0f32;
+    let mut c = 0.0f32;
+    for k in 0..11u32 {
+        let kk = k as usize;
+        if row + kk >= 5usize && row + kk < (h as usize) + 5usize {
+            let src = id + kk * step - 5usize * step;
+            let t = tap(k);
+            a += t * rows[src];
+            b += t * rows[src + p];
+            c += t * rows[src + 2 * p];
+        }
+    }
+    (a, b, c)
+}
+
 /// Forward (2): along H, the statistics `stats[0..3][p]` and the SSIM map.
 #[cube(launch)]
 fn ssim_cols_kernel(
@@ -75,22 +96,8 @@ fn ssim_cols_kernel(
     if id >= pixels as usize {
         terminate!();
     }
-    let row = (id / (w as usize)) % (h as usize);
-    let step = w as usize;
     let p = pixels as usize;
-    let mut mu = 0.0f32;
-    let mut exx = 0.0f32;
-    let mut exy = 0.0f32;
-    for k in 0..11u32 {
-        let kk = k as usize;
-        if row + kk >= 5usize && row + kk < (h as usize) + 5usize {
-            let src = id + kk * step - 5usize * step;
-            let t = tap(k);
-            mu += t * rows[src];
-            exx += t * rows[src + p];
-            exy += t * rows[src + 2 * p];
-        }
-    }
+    let (mu, exx, exy) = window_along_h(rows, id, p, h, w);
     stats[id] = mu;
     stats[id + p] = exx;
     stats[id + 2 * p] = exy;
@@ -163,22 +170,7 @@ fn ssim_grad_cols_kernel(
     if id >= pixels as usize {
         terminate!();
     }
-    let row = (id / (w as usize)) % (h as usize);
-    let step = w as usize;
-    let p = pixels as usize;
-    let mut g_mu = 0.0f32;
-    let mut g_xx = 0.0f32;
-    let mut g_xy = 0.0f32;
-    for k in 0..11u32 {
-        let kk = k as usize;
-        if row + kk >= 5usize && row + kk < (h as usize) + 5usize {
-            let src = id + kk * step - 5usize * step;
-            let t = tap(k);
-            g_mu += t * rows[src];
-            g_xx += t * rows[src + p];
-            g_xy += t * rows[src + 2 * p];
-        }
-    }
+    let (g_mu, g_xx, g_xy) = window_along_h(rows, id, pixels as usize, h, w);
     let c = grad[0] / f32::cast_from(pixels);
     out[id] = c * (g_mu + 2.0f32 * x[id] * g_xx + y[id] * g_xy);
 }
