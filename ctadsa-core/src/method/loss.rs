@@ -1,9 +1,7 @@
 //! Losses: `(1 − λ) L1 + λ (1 − SSIM)` on images normalised by the targets' maximum, the
-//! false-negative loss over vessel pixels, and the prior-anchoring term.
+//! false-negative loss over vessel pixels (the prior-anchoring term's search is `anchor_op`).
 
 use burn::tensor::{Device, Int, Tensor, TensorData};
-use glam::DVec3;
-use kiddo::{ImmutableKdTree, SquaredEuclidean};
 
 use crate::data::case::images::Image;
 use crate::stats::percentile;
@@ -202,134 +200,6 @@ impl LossTargets {
     }
 }
 
-/// Prior anchoring: Gaussians within `radius` of the prior surface are pulled to the mean of
-/// their `k` nearest prior-surface points.
-pub struct PriorAnchor {
-    points: Vec<[f64; 3]>,
-    tree: ImmutableKdTree<f64, 3>,
-    /// Where a centre may have a prior point within the radius (rejects the others without a
-    /// tree search).
-    near: NearCells,
-    pub radius_mm: f64,
-    pub k: usize,
-}
-
-impl PriorAnchor {
-    /// From prior-surface points (mm).
-    pub fn new(points: &[DVec3], radius_mm: f64, k: usize) -> Option<Self> {
-        if points.is_empty() {
-            return None;
-        }
-        let pts: Vec<[f64; 3]> = points.iter().map(|p| p.to_array()).collect();
-        let tree = ImmutableKdTree::new_from_slice(&pts).ok()?;
-        let near = NearCells::new(&pts, radius_mm);
-        Some(Self { points: pts, tree, near, radius_mm, k })
-    }
-
-    /// For centres `[n·3]` (host), the anchored ones: their positions in the slice and targets.
-    pub fn targets(&self, centres: &[f32]) -> (Vec<usize>, Vec<f32>) {
-        let k = std::num::NonZero::new(self.k.max(1)).expect("k ≥ 1");
-        let queries: Vec<[f64; 3]> = centres.chunks_exact(3).map(|c| [c[0] as f64, c[1] as f64, c[2] as f64]).collect();
-        let r2 = self.radius_mm * self.radius_mm;
-        // Only centres with a prior point in a neighbouring cell can be within r.
-        let near: Vec<usize> = (0..queries.len()).filter(|&i| self.near.may_be_near(queries[i])).collect();
-        let near_queries: Vec<[f64; 3]> = near.iter().map(|&i| queries[i]).collect();
-        let knn = self.tree.query_batch(&near_queries).nearest_n::<SquaredEuclidean<f64>>(k).execute();
-        let results: Vec<(usize, &[_])> = near.iter().copied().zip(knn.iter()).collect();
-        let mut idx = Vec::new();
-        let mut tgt = Vec::new();
-        for &(i, res) in &results {
-            if res.first().is_some_and(|n| n.distance <= r2) {
-                let mut m = [0.0f64; 3];
-                for n in res.iter() {
-                    let p = self.points[n.item as usize];
-                    for a in 0..3 {
-                        m[a] += p[a] / res.len() as f64;
-                    }
-                }
-                idx.push(i);
-                tgt.extend(m.map(|v| v as f32));
-            }
-        }
-        (idx, tgt)
-    }
-}
-
-/// A bit per cell of a grid of cells at least the radius wide: set where the cell or one of its
-/// 26 neighbours holds a point, so that a query whose cell is unset has no point within the
-/// radius.
-struct NearCells {
-    origin: [f64; 3],
-    cell_mm: f64,
-    dims: [usize; 3],
-    bits: Vec<u64>,
-}
-
-impl NearCells {
-    /// At most this many cells along an axis (the cells widen beyond the radius for large
-    /// extents).
-    const MAX_DIM: usize = 512;
-
-    fn new(points: &[[f64; 3]], radius_mm: f64) -> Self {
-        let mut lo = [f64::INFINITY; 3];
-        let mut hi = [f64::NEG_INFINITY; 3];
-        for p in points {
-            for a in 0..3 {
-                lo[a] = lo[a].min(p[a]);
-                hi[a] = hi[a].max(p[a]);
-            }
-        }
-        let extent = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max);
-        // A hair wider than the radius, so that rounding of the cell index cannot put a point
-        // at exactly the radius two cells away.
-        let cell_mm = (radius_mm * 1.001).max(extent / (Self::MAX_DIM - 4) as f64).max(1e-6);
-        // One empty cell of margin on each side, so that every neighbour of a point's cell exists.
-        let origin = lo.map(|l| l - cell_mm);
-        let dims = [0, 1, 2].map(|a| (((hi[a] - lo[a]) / cell_mm).floor() as usize + 3).min(Self::MAX_DIM));
-        let mut cells = Self { origin, cell_mm, dims, bits: vec![0; (dims[0] * dims[1] * dims[2]).div_ceil(64)] };
-        for p in points {
-            let Some(c) = cells.cell(*p) else { continue };
-            for dz in 0..3 {
-                for dy in 0..3 {
-                    for dx in 0..3 {
-                        let i = (c[0] + dx - 1) + dims[0] * ((c[1] + dy - 1) + dims[1] * (c[2] + dz - 1));
-                        cells.bits[i / 64] |= 1 << (i % 64);
-                    }
-                }
-            }
-        }
-        cells
-    }
-
-    /// The cell holding `p`, when it lies inside the grid (points always do).
-    fn cell(&self, p: [f64; 3]) -> Option<[usize; 3]> {
-        let mut c = [0usize; 3];
-        for a in 0..3 {
-            let t = ((p[a] - self.origin[a]) / self.cell_mm).floor();
-            if !(t >= 1.0 && t < (self.dims[a] - 1) as f64) {
-                return None;
-            }
-            c[a] = t as usize;
-        }
-        Some(c)
-    }
-
-    /// Whether a point may lie within the radius of `q` (false: certainly none does).
-    fn may_be_near(&self, q: [f64; 3]) -> bool {
-        let mut c = [0usize; 3];
-        for a in 0..3 {
-            let t = ((q[a] - self.origin[a]) / self.cell_mm).floor();
-            // Outside the grid: more than one cell (≥ the radius) from every point.
-            if !(t >= 0.0 && t < self.dims[a] as f64) {
-                return false;
-            }
-            c[a] = t as usize;
-        }
-        let i = c[0] + self.dims[0] * (c[1] + self.dims[1] * c[2]);
-        self.bits[i / 64] >> (i % 64) & 1 == 1
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -399,60 +269,5 @@ mod tests {
         // miss = relu(1 − 0.25 − 0.005) = 0.745.
         let l = t.fn_loss(pred, 0.005).into_scalar::<f32>();
         assert!((l - 0.745).abs() < 1e-6, "{l}");
-    }
-
-    #[test]
-    fn anchoring_targets_are_means_of_nearest_points() {
-        let pts: Vec<DVec3> = (0..10).map(|i| DVec3::new(i as f64, 0.0, 0.0)).collect();
-        let a = PriorAnchor::new(&pts, 0.5, 2).unwrap();
-        let (idx, tgt) = a.targets(&[4.2, 0.3, 0.0, 4.5, 3.0, 0.0]);
-        assert_eq!(idx, vec![0]); // the second centre is 3 mm away
-        assert_eq!(tgt, vec![4.5, 0.0, 0.0]); // mean of points 4 and 5
-    }
-
-    /// The cell pre-test rejects nothing that a brute-force search keeps: targets equal the
-    /// mean of the k nearest points for exactly the centres within the radius.
-    #[test]
-    fn anchoring_matches_a_brute_force_search() {
-        let mut state = 0x2545_F491_4F6C_DD1Du64;
-        let mut uniform = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 11) as f64 / (1u64 << 53) as f64
-        };
-        // Points on a sphere of radius 5 mm; centres in a shell around it.
-        let pts: Vec<DVec3> = (0..3000)
-            .map(|_| {
-                let d = DVec3::new(uniform() - 0.5, uniform() - 0.5, uniform() - 0.5).normalize_or(DVec3::X);
-                d * 5.0 + DVec3::new(1.0, -2.0, 3.0)
-            })
-            .collect();
-        let (radius, k) = (0.4, 4);
-        let a = PriorAnchor::new(&pts, radius, k).unwrap();
-        let centres: Vec<f32> = (0..1500)
-            .flat_map(|_| {
-                let d = DVec3::new(uniform() - 0.5, uniform() - 0.5, uniform() - 0.5).normalize_or(DVec3::X);
-                let p = d * (4.0 + 2.0 * uniform()) + DVec3::new(1.0, -2.0, 3.0);
-                [p.x as f32, p.y as f32, p.z as f32]
-            })
-            .collect();
-        let (idx, tgt) = a.targets(&centres);
-        let mut expected = Vec::new();
-        for (i, c) in centres.chunks_exact(3).enumerate() {
-            let q = DVec3::new(c[0] as f64, c[1] as f64, c[2] as f64);
-            let mut d: Vec<(f64, DVec3)> = pts.iter().map(|p| (p.distance_squared(q), *p)).collect();
-            d.sort_by(|x, y| x.0.total_cmp(&y.0));
-            if d[0].0 <= radius * radius {
-                let mean = d[..k].iter().map(|x| x.1).sum::<DVec3>() / k as f64;
-                expected.push((i, mean));
-            }
-        }
-        assert!(expected.len() > 100 && expected.len() < 1400, "{} centres near", expected.len());
-        assert_eq!(idx, expected.iter().map(|e| e.0).collect::<Vec<_>>());
-        for (j, (_, m)) in expected.iter().enumerate() {
-            let t = DVec3::new(tgt[3 * j] as f64, tgt[3 * j + 1] as f64, tgt[3 * j + 2] as f64);
-            assert!(t.distance(*m) < 1e-5, "{t} vs {m}");
-        }
     }
 }

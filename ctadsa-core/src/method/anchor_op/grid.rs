@@ -1,6 +1,6 @@
 //! Prior-surface points binned into cells of a uniform grid, found through a hash table of the
 //! occupied cells, and the k-nearest-neighbour search over it that the anchor op runs (this CPU
-//! version is the GPU kernel's oracle; a test checks it against a k-d tree).
+//! version is the GPU kernel's oracle; a test checks it against a brute-force search).
 //!
 //! The search visits shells of cells around the query's cell (Chebyshev distance 0, 1, 2, …).
 //! After shell `s`, every point within `s · cell` of the query has been seen, so it stops once
@@ -205,7 +205,6 @@ impl GridView<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::method::loss::PriorAnchor;
     use glam::DVec3;
     use rand::{RngExt, SeedableRng};
 
@@ -233,10 +232,19 @@ mod tests {
         pts
     }
 
-    /// The shell search finds what a k-d tree finds: the same anchored centres and the mean of
-    /// the same k nearest points, for centres on, near and far from the surface.
+    /// The brute-force answer for one centre: whether its nearest point is within `radius`,
+    /// the mean of its `k` nearest (f64), and the distance to the k-th nearest.
+    fn brute_force(pts: &[DVec3], q: DVec3, k: usize, radius: f64) -> (bool, DVec3, f64) {
+        let mut d: Vec<(f64, DVec3)> = pts.iter().map(|p| (p.distance(q), *p)).collect();
+        d.sort_by(|x, y| x.0.total_cmp(&y.0));
+        let k = k.min(d.len());
+        (d[0].0 <= radius, d[..k].iter().map(|x| x.1).sum::<DVec3>() / k as f64, d[k - 1].0)
+    }
+
+    /// The shell search finds what a brute-force search finds: the same anchored centres and
+    /// the mean of the same k nearest points, for centres on, near and far from the surface.
     #[test]
-    fn shell_search_matches_the_kd_tree() {
+    fn shell_search_matches_a_brute_force_search() {
         let pts = surface_points(3);
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
         let queries: Vec<f32> = (0..3000)
@@ -249,40 +257,43 @@ mod tests {
             })
             .collect();
         for (radius, k) in [(0.5, 8), (0.3, 1), (1.0, 20)] {
-            let oracle = PriorAnchor::new(&pts, radius, k).unwrap();
-            let (kept_idx, kept_targets) = oracle.targets(&queries);
             let grid = AnchorGrid::new(&pts.iter().map(|p| p.to_array()).collect::<Vec<_>>(), radius);
             let (targets, keep) = grid.view().targets(&queries, k, radius as f32);
-            let ours: Vec<usize> = keep.iter().enumerate().filter(|(_, k)| **k == 1.0).map(|(i, _)| i).collect();
-            assert_eq!(ours, kept_idx, "radius {radius}, k {k}: anchored centres");
-            assert!(ours.len() > 500 && ours.len() < 2900, "a mix of anchored and free centres: {}", ours.len());
             let reach = MAX_SHELL as f64 * grid.cell_mm as f64;
-            let mut compared = 0;
-            for (j, &i) in kept_idx.iter().enumerate() {
-                // Exact where the k nearest lie within the shells searched (documented limit).
-                let q = DVec3::new(queries[3 * i] as f64, queries[3 * i + 1] as f64, queries[3 * i + 2] as f64);
-                let mut d: Vec<f64> = pts.iter().map(|p| p.distance(q)).collect();
-                d.sort_by(f64::total_cmp);
-                if d[k.min(d.len()) - 1] > reach {
-                    continue;
-                }
-                compared += 1;
-                for a in 0..3 {
-                    let (x, y) = (targets[3 * i + a], kept_targets[3 * j + a]);
-                    assert!((x - y).abs() < 1e-4, "centre {i}: target {x} vs {y}");
-                }
-            }
-            assert!(compared > kept_idx.len() * 9 / 10, "{compared} of {} compared", kept_idx.len());
-            for (i, &k) in keep.iter().enumerate() {
-                if k == 0.0 {
+            let (mut kept, mut compared) = (0, 0);
+            for (i, q) in queries.chunks_exact(3).enumerate() {
+                let q = DVec3::new(q[0] as f64, q[1] as f64, q[2] as f64);
+                let (near, mean, kth) = brute_force(&pts, q, k, radius);
+                assert_eq!(keep[i] == 1.0, near, "radius {radius}, k {k}: centre {i} anchored?");
+                if !near {
                     assert_eq!(
                         &targets[3 * i..3 * i + 3],
                         &queries[3 * i..3 * i + 3],
                         "a free centre is its own target"
                     );
+                    continue;
                 }
+                kept += 1;
+                // Exact where the k nearest lie within the shells searched (documented limit).
+                if kth > reach {
+                    continue;
+                }
+                compared += 1;
+                let t = DVec3::new(targets[3 * i] as f64, targets[3 * i + 1] as f64, targets[3 * i + 2] as f64);
+                assert!(t.distance(mean) < 1e-4, "centre {i}: target {t} vs {mean}");
             }
+            assert!(kept > 500 && kept < 2900, "a mix of anchored and free centres: {kept}");
+            assert!(compared > kept * 9 / 10, "{compared} of {kept} compared");
         }
+    }
+
+    #[test]
+    fn targets_are_means_of_nearest_points() {
+        let pts: Vec<[f64; 3]> = (0..10).map(|i| [i as f64, 0.0, 0.0]).collect();
+        let grid = AnchorGrid::new(&pts, 0.5);
+        let (targets, keep) = grid.view().targets(&[4.2, 0.3, 0.0, 4.5, 3.0, 0.0], 2, 0.5);
+        assert_eq!(keep, vec![1.0, 0.0], "the second centre is 3 mm away");
+        assert_eq!(&targets[..3], &[4.5, 0.0, 0.0], "the mean of points 4 and 5");
     }
 
     #[test]
