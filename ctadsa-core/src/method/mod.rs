@@ -4,6 +4,8 @@
 
 pub mod anchor_op;
 pub mod blur_op;
+#[cfg(feature = "wgpu")]
+mod cube;
 pub mod densify;
 pub mod field_health;
 pub mod init;

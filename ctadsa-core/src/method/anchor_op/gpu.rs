@@ -2,16 +2,14 @@
 //! (`grid.rs` says how; this kernel follows it step for step, with the k nearest kept sorted in
 //! local arrays of [`MAX_K`] entries).
 
-use burn::backend::ops::FloatTensorOps;
-use burn::backend::{FloatDType, TensorMetadata};
-use burn::tensor::Shape;
+use burn::backend::TensorMetadata;
 use burn_cubecl::cubecl::prelude::*;
 use burn_cubecl::tensor::CubeTensor;
 use burn_cubecl::{CubeBackend, cubecl};
 
 use super::grid::{MAX_K, MAX_SHELL, SLOT};
 use super::{AnchorSearch, AnchorTargets};
-use crate::method::model::hash_op::gpu::prepare;
+use crate::method::cube::{empty, launch_1d, prepare};
 
 /// `(first point, count)` of cell `(cx, cy, cz)`; count 0 when the cell is empty.
 #[cube]
@@ -162,12 +160,11 @@ pub fn anchor_targets(
 ) -> AnchorTargets<CubeBackend> {
     let (queries, points, table) = (prepare(queries), prepare(points), prepare(table));
     let m = queries.shape()[0];
-    let targets = CubeBackend::float_empty(Shape::from(vec![m, 3]), &queries.device, FloatDType::F32);
-    let keep = CubeBackend::float_empty(Shape::from(vec![m]), &queries.device, FloatDType::F32);
+    let targets = empty(vec![m, 3], &queries);
+    let keep = empty(vec![m], &queries);
     let slots = table.shape().num_elements() / SLOT;
     if m > 0 && slots > 0 {
-        let dim = CubeDim::new_1d(64);
-        let count = cubecl::calculate_cube_count_elemwise(&queries.client, m, dim);
+        let (count, dim) = launch_1d(&queries, m, 64);
         anchor_kernel::launch(
             &queries.client,
             count,

@@ -1,12 +1,11 @@
 //! CubeCL kernel of the window blur: one unit per output pixel and pass (along W, then H).
 
-use burn::backend::ops::FloatTensorOps;
-use burn::backend::{FloatDType, TensorMetadata};
+use burn::backend::TensorMetadata;
+use burn_cubecl::cubecl;
 use burn_cubecl::cubecl::prelude::*;
 use burn_cubecl::tensor::CubeTensor;
-use burn_cubecl::{CubeBackend, cubecl};
 
-use crate::method::model::hash_op::gpu::prepare;
+use crate::method::cube::{empty, launch_1d, prepare};
 
 /// The window's taps from the centre out (`taps()[5..]`, a Gaussian of σ = 1.5 px normalised
 /// to sum 1), as the f32 values the CPU kernels use: a test checks them against `taps()`.
@@ -77,13 +76,12 @@ pub fn blur(images: CubeTensor) -> CubeTensor {
     let (h, w) = (shape[1], shape[2]);
     let len = shape.num_elements();
     // Both passes write every pixel.
-    let mid = CubeBackend::float_empty(shape.clone(), &images.device, FloatDType::F32);
-    let out = CubeBackend::float_empty(shape, &images.device, FloatDType::F32);
+    let mid = empty(shape.to_vec(), &images);
+    let out = empty(shape.to_vec(), &images);
     if len == 0 {
         return out;
     }
-    let dim = CubeDim::new_1d(64);
-    let count = cubecl::calculate_cube_count_elemwise(&images.client, len, dim);
+    let (count, dim) = launch_1d(&images, len, 64);
     for (src, dst, along_w) in [(&images, &mid, 1u32), (&mid, &out, 0u32)] {
         blur_pass_kernel::launch(
             &images.client,

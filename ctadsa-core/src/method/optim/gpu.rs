@@ -2,14 +2,13 @@
 //! gradient and two moments once and writes the three results once (burn's Adam expressions,
 //! in burn's order: about fifteen tensor passes and launches each when composed of tensor ops).
 
-use burn::backend::ops::FloatTensorOps;
-use burn::backend::{FloatDType, TensorMetadata};
+use burn::backend::TensorMetadata;
 use burn_cubecl::cubecl::prelude::*;
 use burn_cubecl::tensor::CubeTensor;
 use burn_cubecl::{CubeBackend, cubecl};
 
 use super::kernel::{AdamCoefficients, AdamUpdate};
-use crate::method::model::hash_op::gpu::prepare;
+use crate::method::cube::{empty, launch_1d, prepare};
 
 #[cube(launch)]
 #[allow(clippy::too_many_arguments)]
@@ -61,12 +60,11 @@ pub fn adam_update(
     let (param, grad, moment_1, moment_2) = (prepare(param), prepare(grad), prepare(moment_1), prepare(moment_2));
     let shape = param.shape();
     let len = shape.num_elements();
-    let empty = || CubeBackend::float_empty(shape.clone(), &param.device, FloatDType::F32);
-    let (param_out, moment_1_out, moment_2_out) = (empty(), empty(), empty());
+    let output = || empty(shape.to_vec(), &param);
+    let (param_out, moment_1_out, moment_2_out) = (output(), output(), output());
     if len > 0 {
         let (bc2_sqrt, combined) = c.bias_corrections();
-        let dim = CubeDim::new_1d(256);
-        let count = cubecl::calculate_cube_count_elemwise(&param.client, len, dim);
+        let (count, dim) = launch_1d(&param, len, 256);
         adam_kernel::launch(
             &param.client,
             count,

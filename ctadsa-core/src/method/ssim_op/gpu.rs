@@ -18,7 +18,7 @@ use burn_cubecl::{CubeBackend, cubecl};
 
 use super::cpu::{C1, C2};
 use crate::method::blur_op::gpu::tap;
-use crate::method::model::hash_op::gpu::prepare;
+use crate::method::cube::{empty, launch_1d, prepare};
 
 /// `(a1, a2, b1, b2)` with SSIM = `a1·a2 / (b1·b2)`, as `cpu::terms`.
 #[cube]
@@ -175,10 +175,6 @@ fn ssim_grad_cols_kernel(
     out[id] = c * (g_mu + 2.0f32 * x[id] * g_xx + y[id] * g_xy);
 }
 
-fn empty(shape: Vec<usize>, like: &CubeTensor) -> CubeTensor {
-    CubeBackend::float_empty(Shape::from(shape), &like.device, FloatDType::F32)
-}
-
 fn dims3(t: &CubeTensor) -> (usize, usize, usize) {
     let s = t.shape();
     (s[0], s[1], s[2])
@@ -196,8 +192,7 @@ pub fn forward(x: CubeTensor, y: CubeTensor, mu_y: CubeTensor, syy: CubeTensor) 
         let mean = CubeBackend::float_zeros(Shape::from(vec![1]), &x.device, FloatDType::F32);
         return (mean, stats);
     }
-    let dim = CubeDim::new_1d(256);
-    let count = cubecl::calculate_cube_count_elemwise(&x.client, pixels, dim);
+    let (count, dim) = launch_1d(&x, pixels, 256);
     ssim_rows_kernel::launch(
         &x.client,
         count.clone(),
@@ -243,8 +238,7 @@ pub fn backward(
         return out;
     }
     let rows = empty(vec![3 * v, h, w], &x);
-    let dim = CubeDim::new_1d(256);
-    let count = cubecl::calculate_cube_count_elemwise(&x.client, pixels, dim);
+    let (count, dim) = launch_1d(&x, pixels, 256);
     ssim_grad_rows_kernel::launch(
         &x.client,
         count.clone(),

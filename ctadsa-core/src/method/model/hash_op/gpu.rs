@@ -5,13 +5,14 @@
 
 use burn::backend::ops::FloatTensorOps;
 use burn::backend::{FloatDType, TensorMetadata};
-use burn::tensor::{DType, Shape, TensorData};
+use burn::tensor::{Shape, TensorData};
 use burn_cubecl::cubecl::prelude::*;
-use burn_cubecl::kernel::into_contiguous;
 use burn_cubecl::tensor::CubeTensor;
 use burn_cubecl::{CubeBackend, cubecl};
 
 use ctadsa_render::gpu::atomics::{Accumulator, add_f32};
+
+use crate::method::cube::{empty, launch_1d, prepare};
 
 use crate::method::model::hash_grid::{HASH_P1, HASH_P2, HashGridConfig};
 
@@ -126,12 +127,6 @@ fn hash_backward_kernel(
     grad_u_levels[3 * id + 2] = gz;
 }
 
-/// An f32, contiguous copy of `t` (no copy when it already is), as the kernels index it.
-pub(crate) fn prepare(t: CubeTensor) -> CubeTensor {
-    let t = if t.dtype() == DType::F32 { t } else { CubeBackend::float_cast(t, FloatDType::F32) };
-    into_contiguous(t)
-}
-
 fn meta(c: &HashGridConfig, like: &CubeTensor) -> CubeTensor {
     let data: Vec<f32> = (0..c.levels)
         .flat_map(|l| {
@@ -142,8 +137,7 @@ fn meta(c: &HashGridConfig, like: &CubeTensor) -> CubeTensor {
 }
 
 fn dims(c: &HashGridConfig, n: usize, like: &CubeTensor) -> (CubeCount, CubeDim) {
-    let dim = CubeDim::new_1d(64);
-    (cubecl::calculate_cube_count_elemwise(&like.client, n * c.levels, dim), dim)
+    launch_1d(like, n * c.levels, 64)
 }
 
 /// Forward on the GPU: `[N, L·F]`.
@@ -151,7 +145,7 @@ pub fn encode(u: CubeTensor, tables: CubeTensor, c: &HashGridConfig) -> CubeTens
     let (u, tables) = (prepare(u), prepare(tables));
     let n = u.shape()[0];
     // Written whole by the kernel.
-    let out = CubeBackend::float_empty(Shape::from(vec![n, c.output_dim()]), &u.device, FloatDType::F32);
+    let out = empty(vec![n, c.output_dim()], &u);
     if n == 0 {
         return out;
     }
@@ -185,7 +179,7 @@ pub fn encode_backward(
     let n = u.shape()[0];
     let grad_tables = CubeBackend::float_zeros(tables.shape(), &u.device, FloatDType::F32);
     // Written whole by the kernel (one unit per point and level).
-    let per_level = CubeBackend::float_empty(Shape::from(vec![n, c.levels, 3]), &u.device, FloatDType::F32);
+    let per_level = empty(vec![n, c.levels, 3], &u);
     if n > 0 {
         let meta = meta(c, &u);
         let (count, dim) = dims(c, n, &u);

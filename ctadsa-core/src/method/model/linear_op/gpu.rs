@@ -9,15 +9,15 @@
 //!   partial sums over chunks of [`ROWS_PER_CHUNK`] rows (one unit per chunk and entry of the
 //!   `[I + 1, O]` block, the last row being the bias's) summed over the chunks by one reduction.
 
+use burn::backend::TensorMetadata;
 use burn::backend::ops::FloatTensorOps;
-use burn::backend::{FloatDType, TensorMetadata};
 use burn::tensor::Shape;
 use burn_cubecl::cubecl::prelude::*;
 use burn_cubecl::tensor::CubeTensor;
 use burn_cubecl::{CubeBackend, cubecl};
 
 use super::{Activation, LinearGrads};
-use crate::method::model::hash_op::gpu::prepare;
+use crate::method::cube::{empty, launch_1d, prepare};
 
 /// Rows per partial sum of the weight and bias gradients.
 pub const ROWS_PER_CHUNK: usize = 256;
@@ -120,15 +120,6 @@ fn weight_gradient_kernel(
     partial[id] = acc;
 }
 
-fn launch_dims(like: &CubeTensor, len: usize) -> (CubeCount, CubeDim) {
-    let dim = CubeDim::new_1d(256);
-    (cubecl::calculate_cube_count_elemwise(&like.client, len, dim), dim)
-}
-
-fn empty(shape: Vec<usize>, like: &CubeTensor) -> CubeTensor {
-    CubeBackend::float_empty(Shape::from(shape), &like.device, FloatDType::F32)
-}
-
 /// `act(x·w + b)`: `x` `[N, I]`, `w` `[I, O]`, `b` `[O]` → `[N, O]`.
 pub fn forward(x: CubeTensor, w: CubeTensor, b: CubeTensor, act: Activation) -> CubeTensor {
     let (n, o) = (x.shape()[0], w.shape()[1]);
@@ -137,7 +128,7 @@ pub fn forward(x: CubeTensor, w: CubeTensor, b: CubeTensor, act: Activation) -> 
     let out = empty(vec![n, o], &z);
     let len = n * o;
     if len > 0 {
-        let (count, dim) = launch_dims(&z, len);
+        let (count, dim) = launch_1d(&z, len, 256);
         bias_activation_kernel::launch(
             &z.client,
             count,
@@ -170,7 +161,7 @@ pub fn backward(
             let gz = empty(vec![n, o], &grad);
             let len = n * o;
             if len > 0 {
-                let (count, dim) = launch_dims(&grad, len);
+                let (count, dim) = launch_1d(&grad, len, 256);
                 activation_gradient_kernel::launch(
                     &grad.client,
                     count,
@@ -189,7 +180,7 @@ pub fn backward(
     let chunks = n.div_ceil(ROWS_PER_CHUNK).max(1);
     let partial = empty(vec![chunks, i + 1, o], &gz);
     let len = chunks * (i + 1) * o;
-    let (count, dim) = launch_dims(&gz, len);
+    let (count, dim) = launch_1d(&gz, len, 256);
     weight_gradient_kernel::launch(
         &gz.client,
         count,
