@@ -364,6 +364,33 @@ fn densification_grows_the_model_and_resumes_exactly() {
     assert_resume_is_exact(cfg, 15, "densify");
 }
 
+/// Re-seeding (`densify.reseed_at`) adds image seeds where the model leaves residual, counts
+/// them as image seeds, keeps training finite, and a run resumed before it stays bit-identical.
+#[test]
+fn reseeding_adds_gaussians_where_the_views_are_unexplained_and_resumes_exactly() {
+    let mut cfg = tiny_config(30);
+    cfg.densify.reseed_at = vec![15];
+    cfg.densify.reseed_n = 400;
+    cfg.densify.max_gaussians = 4000;
+    let mut t = Trainer::new(tiny_case(), cfg.clone(), Device::ndarray().autodiff()).unwrap();
+    let (n0, seeds0) = (t.model().len(), t.n2);
+    while t.iteration < 15 {
+        t.step().unwrap();
+    }
+    let added = t.model().len() - n0;
+    assert!(added > 0 && added <= 400, "re-seeding added {added} Gaussians (at most 400)");
+    assert_eq!(t.n2, seeds0 + added, "counted as image seeds");
+    while t.iteration < 30 {
+        t.step().unwrap();
+    }
+    t.flush_logs().unwrap();
+    assert!(t.history.iter().all(|h| h.loss.is_finite()));
+    let mut member = cfg.clone();
+    member.run.prior_only_member = true;
+    assert!(member.prior_only_member().unwrap().densify.reseed_at.is_empty(), "the prior-only member does not re-seed");
+    assert_resume_is_exact(cfg, 10, "reseed");
+}
+
 /// A densify call right after a step prunes by that step's densities (its field forward, one
 /// Adam step behind), and a call with no step before it by a fresh field forward.
 #[test]
@@ -563,6 +590,13 @@ fn no_ground_truth_steers_the_method() {
             let ns = d.new_surface.expect("the case has a prior");
             let banded: f64 = ns.bands.iter().map(|band| band.area_mm2).sum();
             assert!((banded - ns.area_mm2).abs() <= 1e-9 * ns.area_mm2.max(1.0), "{ns:?}");
+            // The seeds alone: the run's own image seeds, classes that sum to 1.
+            let s = ctadsa_core::eval::diagnose::diagnose_seeds(c, &tiny_config(30)).unwrap();
+            let total = s.seeded + s.not_in_masks + s.behind_prior + s.not_seeded;
+            assert!((total - 1.0).abs() < 1e-9, "seed classes sum to {total}");
+            assert_eq!(s.seeds, summary.n2, "the run's image seeds");
+            assert!(s.seeded > 0.0, "some missing vessel is seeded: {s:?}");
+            assert!((0.0..=1.0).contains(&s.on_missing) && (0.0..=1.0).contains(&s.ghosts), "{s:?}");
         }
         outputs.push((summary, std::fs::read(dir.join("mesh.obj")).unwrap(), trainer.history.clone()));
     }

@@ -123,6 +123,9 @@ pub struct InitConfig {
     pub connected_to_prior_mm: f64,
     /// Apply `connected_to_prior_mm` only to runs with at most this many views.
     pub connected_max_views: usize,
+    /// Image seeds at least this far apart (mm), the best-scored first: spreads `n2` along every
+    /// supported vessel instead of piling it on the brightest. 0 = the `n2` best-scored voxels.
+    pub seed_spacing_mm: f64,
 }
 
 impl Default for InitConfig {
@@ -141,6 +144,7 @@ impl Default for InitConfig {
             occluded_min_views: 3,
             connected_to_prior_mm: 3.0,
             connected_max_views: 2,
+            seed_spacing_mm: 0.0,
         }
     }
 }
@@ -272,6 +276,21 @@ pub struct DensifyConfig {
     pub min_density: f64,
     /// Never grow beyond this many Gaussians.
     pub max_gaussians: usize,
+    /// Re-seeding from what the model does not explain (`method::reseed`): at each of these
+    /// iterations the views are rendered, and new Gaussians are placed where every view's
+    /// residual (target − render) is bright, as the image seeds are placed at the start. The
+    /// prior's pixels are not lost to it: once the model draws the prior, a vessel behind it
+    /// shows in the residual. Empty = off.
+    pub reseed_at: Vec<usize>,
+    /// Gaussians added at each re-seeding (at most; `max_gaussians` bounds the total).
+    pub reseed_n: usize,
+    /// A view's residual counts where it exceeds this × the 99.5th percentile of the view's
+    /// positive target pixels; 0 = `init.mask_threshold`.
+    pub reseed_mask_threshold: f64,
+    /// Re-seeding in runs that keep image seeds connected to the prior (`init.connected_*`):
+    /// new seeds may connect to what the model already draws (the voxels of its Gaussians at
+    /// least as dense as the median one) as well as to the prior, so vessels grow from their ends.
+    pub reseed_from_model: bool,
 }
 
 impl Default for DensifyConfig {
@@ -285,6 +304,10 @@ impl Default for DensifyConfig {
             clone_scale_voxels: [2.5, 0.5],
             min_density: 1e-6,
             max_gaussians: 500_000,
+            reseed_at: Vec::new(),
+            reseed_n: 1500,
+            reseed_mask_threshold: 0.0,
+            reseed_from_model: false,
         }
     }
 }
@@ -542,6 +565,7 @@ impl Config {
             "must be in [0, 1)",
         )?;
         check(self.init.knn >= 1, "init.knn", "must be ≥ 1")?;
+        check((0.0..=100.0).contains(&self.init.seed_spacing_mm), "init.seed_spacing_mm", "must be in [0, 100] mm")?;
         check(self.init.n2_voxel_mm >= 0.0, "init.n2_voxel_mm", "must be ≥ 0")?;
         check(
             self.model.scale_min_voxels > 0.0 && self.model.scale_max_voxels > self.model.scale_min_voxels,
@@ -557,6 +581,7 @@ impl Config {
             ("init.n1", self.init.n1),
             ("init.n2", self.init.n2),
             ("densify.max_gaussians", self.densify.max_gaussians),
+            ("densify.reseed_n", self.densify.reseed_n),
             ("loss.pa_samples", self.loss.pa_samples),
         ] {
             check(n <= MAX_GAUSSIANS, k, "must be at most 20,000,000")?;
@@ -644,6 +669,11 @@ impl Config {
         check(self.loss.pa_k >= 1, "loss.pa_k", "must be ≥ 1")?;
         check(self.loss.pa_radius_mm > 0.0, "loss.pa_radius_mm", "must be > 0")?;
         check(self.densify.every >= 1, "densify.every", "must be ≥ 1")?;
+        check(
+            (0.0..1.0).contains(&self.densify.reseed_mask_threshold),
+            "densify.reseed_mask_threshold",
+            "must be in [0, 1)",
+        )?;
         check(self.densify.grad_threshold > 0.0, "densify.grad_threshold", "must be > 0")?;
         check(self.output.min_island_mm2 >= 0.0, "output.min_island_mm2", "must be ≥ 0")?;
         check(
@@ -704,6 +734,7 @@ impl Config {
         let mut member = self.clone();
         member.init.n2 = 0;
         member.init.n2_mode = SeedMode::None;
+        member.densify.reseed_at.clear();
         member.run.prior_only_member = false;
         Some(member)
     }

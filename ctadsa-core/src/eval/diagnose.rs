@@ -17,7 +17,7 @@
 
 use std::path::Path;
 
-use ctadsa_render::ConeBeamView;
+use ctadsa_render::{ConeBeamView, ViewSet};
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
@@ -162,19 +162,85 @@ pub fn diagnose(missing: &[Segment], inp: &DiagnoseInputs) -> LossBreakdown {
     out
 }
 
-/// [`diagnose`] and [`new_surface`] of a finished run (`run_dir` with `config.toml`,
-/// `density.nii.gz`, `summary.json` and the completed mesh) on its synthetic case, which must
-/// have a tree.
-pub fn diagnose_run(case: &Case, run_dir: &Path) -> Result<Diagnosis> {
-    let cfg = Config::load(Some(&run_dir.join("config.toml")), &[])?;
-    let truth = CaseTruth::load(case)?.ok_or_else(|| CoreError::invalid("the case has no ground truth"))?;
-    let missing = truth
-        .missing_centreline
-        .as_ref()
-        .ok_or_else(|| CoreError::invalid("the case has no centreline tree (gt/tree.swc) and prior threshold"))?;
-    let (views, images) = prepare_views(case, &cfg)?;
+/// Where the N2 seeds of a configuration fall, before any training: the missing centreline
+/// length seeded (a seed within [`SEED_RADIUS_MM`]) or, if not, why not (the classes of
+/// [`LossBreakdown`] before training), and what the seeds hit.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct SeedCoverage {
+    /// Fractions of the missing centreline length (they sum to 1).
+    pub seeded: f64,
+    pub not_in_masks: f64,
+    pub behind_prior: f64,
+    pub not_seeded: f64,
+    /// Missing centreline length (mm).
+    pub length_mm: f64,
+    /// N2 seeds.
+    pub seeds: usize,
+    /// Share of the seeds within [`SEED_RADIUS_MM`] of the missing centreline.
+    pub on_missing: f64,
+    /// Share of the seeds farther than [`ELSEWHERE_MM`] from every true vessel surface (ghosts).
+    pub ghosts: f64,
+}
+
+/// Classifies the missing centreline by the seeds alone (`prior_silhouettes` as in
+/// [`DiagnoseInputs`]); `truth` is the complete true surface.
+pub fn seed_coverage(
+    missing: &[Segment],
+    views: &[ConeBeamView],
+    images: &[Image],
+    mask_threshold: f64,
+    prior_silhouettes: &[Mask],
+    seeds: &[DVec3],
+    truth: &SurfaceIndex,
+) -> SeedCoverage {
+    let masks: Vec<Mask> = images.iter().map(|i| vessel_mask(i, mask_threshold)).collect();
+    let points = centreline_points(missing);
+    let centres: Vec<DVec3> = points.iter().map(|p| p.position_mm).collect();
+    let to_seed = nearest_distances(&centres, seeds);
+    let mut out = SeedCoverage { seeds: seeds.len(), ..SeedCoverage::default() };
+    for (k, cp) in points.iter().enumerate() {
+        let px: Vec<Option<usize>> = views.iter().map(|v| pixel(v, cp.position_mm)).collect();
+        let class = if to_seed[k] <= SEED_RADIUS_MM {
+            &mut out.seeded
+        } else if px.iter().zip(&masks).any(|(q, m)| !q.is_some_and(|q| m.data[q])) {
+            &mut out.not_in_masks
+        } else if px.iter().zip(prior_silhouettes).any(|(q, m)| q.is_some_and(|q| m.data[q])) {
+            &mut out.behind_prior
+        } else {
+            &mut out.not_seeded
+        };
+        *class += cp.length_mm;
+        out.length_mm += cp.length_mm;
+    }
+    if out.length_mm > 0.0 {
+        let l = out.length_mm;
+        for f in [&mut out.seeded, &mut out.not_in_masks, &mut out.behind_prior, &mut out.not_seeded] {
+            *f /= l;
+        }
+    }
+    if !seeds.is_empty() {
+        let n = seeds.len() as f64;
+        let to_missing = nearest_distances(seeds, &centres);
+        out.on_missing = to_missing.iter().filter(|&&d| d <= SEED_RADIUS_MM).count() as f64 / n;
+        out.ghosts = truth.distances(seeds).iter().filter(|&&d| d > ELSEWHERE_MM).count() as f64 / n;
+    }
+    out
+}
+
+/// A configuration's image seeds on a case: its views and images, the N2 seeds (mm) and the
+/// prior's dilated projections.
+struct Seeding {
+    views: ViewSet,
+    images: Vec<Image>,
+    seeds: Vec<DVec3>,
+    prior_silhouettes: Vec<Mask>,
+}
+
+/// The [`Seeding`] of configuration `cfg` on `case`.
+fn seeds_of(case: &Case, cfg: &Config) -> Result<Seeding> {
+    let (views, images) = prepare_views(case, cfg)?;
     let prior = case.prior_mesh()?;
-    let working_box = run_working_box(case, &cfg, &views, &images, prior.as_ref())?;
+    let working_box = run_working_box(case, cfg, &views, &images, prior.as_ref())?;
     let h = case.file.volume.voxel_mm;
     let bounds = ScaleBounds::from_voxel(h, cfg.model.scale_min_voxels, cfg.model.scale_max_voxels);
     let init = initialise(&cfg.init, views.views(), &images, prior.as_ref(), &working_box, h, bounds, cfg.run.seed)?;
@@ -191,6 +257,41 @@ pub fn diagnose_run(case: &Case, run_dir: &Path) -> Result<Diagnosis> {
             images.iter().map(|i| Mask { width: i.width, height: i.height, data: vec![false; i.data.len()] }).collect()
         }
     };
+    Ok(Seeding { views, images, seeds, prior_silhouettes })
+}
+
+/// [`seed_coverage`] of configuration `cfg` on a synthetic `case` with a tree (no run needed).
+pub fn diagnose_seeds(case: &Case, cfg: &Config) -> Result<SeedCoverage> {
+    let truth = CaseTruth::load(case)?.ok_or_else(|| CoreError::invalid("the case has no ground truth"))?;
+    let missing = truth
+        .missing_centreline
+        .as_ref()
+        .ok_or_else(|| CoreError::invalid("the case has no centreline tree (gt/tree.swc) and prior threshold"))?;
+    let Seeding { views, images, seeds, prior_silhouettes } = seeds_of(case, cfg)?;
+    let truth_index = SurfaceIndex::new(&truth.complete);
+    Ok(seed_coverage(
+        missing,
+        views.views(),
+        &images,
+        cfg.init.mask_threshold,
+        &prior_silhouettes,
+        &seeds,
+        &truth_index,
+    ))
+}
+
+/// [`diagnose`] and [`new_surface`] of a finished run (`run_dir` with `config.toml`,
+/// `density.nii.gz`, `summary.json` and the completed mesh) on its synthetic case, which must
+/// have a tree.
+pub fn diagnose_run(case: &Case, run_dir: &Path) -> Result<Diagnosis> {
+    let cfg = Config::load(Some(&run_dir.join("config.toml")), &[])?;
+    let truth = CaseTruth::load(case)?.ok_or_else(|| CoreError::invalid("the case has no ground truth"))?;
+    let missing = truth
+        .missing_centreline
+        .as_ref()
+        .ok_or_else(|| CoreError::invalid("the case has no centreline tree (gt/tree.swc) and prior threshold"))?;
+    let Seeding { views, images, seeds, prior_silhouettes } = seeds_of(case, &cfg)?;
+    let prior = case.prior_mesh()?;
     let density = read_nifti(&run_dir.join("density.nii.gz"))?;
     let summary_path = run_dir.join("summary.json");
     let summary: serde_json::Value = serde_json::from_slice(&read_file(&summary_path)?)

@@ -38,10 +38,10 @@ fn pixel_of(view: &ConeBeamView, p: DVec3) -> Option<usize> {
 
 /// A supported voxel of the back-projection: its score, its centre (mm) and whether every view
 /// that sees it shows residual there (no view passed it only because the prior hides it).
-type Scored = (f64, DVec3, bool);
+pub(crate) type Scored = (f64, DVec3, bool);
 
 /// Seeds scored by the back-projection of per-view support masks and intensity images.
-fn back_project(
+pub(crate) fn back_project(
     grid: &Grid,
     views: &[ConeBeamView],
     masks: &[Mask],
@@ -167,6 +167,9 @@ pub fn n2_seeds(
         }
     }
     scored.sort_by(|a, b| b.0.total_cmp(&a.0));
+    if cfg.seed_spacing_mm > 0.0 {
+        scored = spread(scored, cfg.seed_spacing_mm, cfg.n2);
+    }
     scored.truncate(cfg.n2);
     Ok(scored
         .into_iter()
@@ -176,9 +179,37 @@ pub fn n2_seeds(
         .collect())
 }
 
+/// The first `n` of `sorted` (best first) that lie at least `spacing_mm` from every one taken
+/// before them (greedy non-maximum suppression on a hashed grid of `spacing_mm` cells).
+pub(crate) fn spread(sorted: Vec<Scored>, spacing_mm: f64, n: usize) -> Vec<Scored> {
+    let cell = |p: DVec3| (p / spacing_mm).floor().as_ivec3();
+    let mut taken: std::collections::HashMap<glam::IVec3, Vec<DVec3>> = std::collections::HashMap::new();
+    let mut out = Vec::with_capacity(n.min(sorted.len()));
+    for s in sorted {
+        if out.len() == n {
+            break;
+        }
+        let c = cell(s.1);
+        let near = (-1..=1).any(|dx| {
+            (-1..=1).any(|dy| {
+                (-1..=1).any(|dz| {
+                    taken
+                        .get(&(c + glam::IVec3::new(dx, dy, dz)))
+                        .is_some_and(|ps| ps.iter().any(|q| q.distance_squared(s.1) < spacing_mm * spacing_mm))
+                })
+            })
+        });
+        if !near {
+            taken.entry(c).or_default().push(s.1);
+            out.push(s);
+        }
+    }
+    out
+}
+
 /// The scored voxels (centres on `prior`'s grid) whose 26-connected group of scored voxels holds
 /// an anchor or comes within `reach_mm` of the prior solid (`reach_mm` = 0: anchors only).
-fn connected_to_anchors(
+pub(crate) fn connected_to_anchors(
     scored: Vec<Scored>,
     prior: &Volume<u8>,
     reach_mm: f64,
@@ -279,7 +310,7 @@ pub fn initialise(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::data::mesh::marching::extract_isosurface;
     use crate::data::projector::project_volume;
@@ -287,12 +318,12 @@ mod tests {
     use crate::data::volume::rasterize::rasterize_segments;
     use ctadsa_render::TigreGeometry;
 
-    fn segment(a: [f64; 3], b: [f64; 3], r: f64) -> Segment {
+    pub(crate) fn segment(a: [f64; 3], b: [f64; 3], r: f64) -> Segment {
         Segment { child: 0, start_mm: DVec3::from(a), end_mm: DVec3::from(b), start_radius_mm: r, end_radius_mm: r }
     }
 
     /// Distance (mm) from `p` to the segment `a`–`b`.
-    fn to_segment(p: DVec3, a: [f64; 3], b: [f64; 3]) -> f64 {
+    pub(crate) fn to_segment(p: DVec3, a: [f64; 3], b: [f64; 3]) -> f64 {
         let (a, b) = (DVec3::from(a), DVec3::from(b));
         let t = ((p - a).dot(b - a) / (b - a).length_squared()).clamp(0.0, 1.0);
         (a + t * (b - a) - p).length()
@@ -303,7 +334,7 @@ mod tests {
 
     /// A thick vessel the prior has and a thin one it misses, seen in three views; the prior
     /// mesh, the views and their images.
-    fn scene() -> (TriMesh, Vec<ConeBeamView>, Vec<Image>, BoxMm) {
+    pub(crate) fn scene() -> (TriMesh, Vec<ConeBeamView>, Vec<Image>, BoxMm) {
         let bounds = BoxMm { min_mm: [-15.0; 3], max_mm: [15.0; 3] };
         let views: Vec<ConeBeamView> = [-90.0, 0.0, -45.0]
             .iter()
@@ -326,7 +357,7 @@ mod tests {
 
     /// The prior mesh (`prior`, radius 1.2 mm) and the views' images of it with `missing`
     /// vessels (radius 0.6 mm), on the scene's 0.4 mm grid.
-    fn prior_and_images(
+    pub(crate) fn prior_and_images(
         prior: ([f64; 3], [f64; 3]),
         missing: &[([f64; 3], [f64; 3])],
         views: &[ConeBeamView],
@@ -440,6 +471,42 @@ mod tests {
         assert_eq!(on(&connected, floating), 0, "the floating vessel is dropped");
         assert!(on(&connected, branch) >= on(&all, branch), "the branch keeps its seeds (and gets the freed ones)");
         assert_eq!(seeds_up_to(3.0, 2), all, "three views are more than connected_max_views: no filter");
+    }
+
+    #[test]
+    fn spread_seeds_keep_their_distance_best_first() {
+        let sorted: Vec<Scored> =
+            (0..20).map(|i| (20.0 - i as f64, DVec3::new(0.25 * i as f64, 0.0, 0.0), true)).collect();
+        let kept = spread(sorted.clone(), 1.0, 100);
+        // 0, 1.0, 2.0, …, 4.75: every fourth point from the best.
+        assert_eq!(kept.iter().map(|s| s.1.x).collect::<Vec<_>>(), vec![0.0, 1.0, 2.0, 3.0, 4.0]);
+        assert_eq!(spread(sorted, 1.0, 2).len(), 2, "at most n");
+    }
+
+    /// A short prior vessel and thin ones parallel to it, hidden behind it in view 0 (shifted
+    /// along that view's rays by `shifts` mm); the scene's views, their images and the prior.
+    pub(crate) fn hidden_scene(shifts: &[f64]) -> HiddenScene {
+        let (_, views, _, bounds) = scene();
+        let short = ([-3.0, 0.0, 0.0], [3.0, 0.0, 0.0]);
+        let d = -views[0].source_mm().normalize();
+        let hidden: Vec<([f64; 3], [f64; 3])> = shifts
+            .iter()
+            .map(|&k| ((DVec3::from(short.0) + k * d).to_array(), (DVec3::from(short.1) + k * d).to_array()))
+            .collect();
+        let (prior, images) = prior_and_images(short, &hidden, &views, &bounds);
+        let prior_only = prior_and_images(short, &[], &views, &bounds).1;
+        HiddenScene { prior, views, images, prior_only, bounds, hidden }
+    }
+
+    /// [`hidden_scene`]: the prior mesh, the views, their images, the images of the prior
+    /// vessel alone, the box and the hidden vessels.
+    pub(crate) struct HiddenScene {
+        pub prior: TriMesh,
+        pub views: Vec<ConeBeamView>,
+        pub images: Vec<Image>,
+        pub prior_only: Vec<Image>,
+        pub bounds: BoxMm,
+        pub hidden: Vec<([f64; 3], [f64; 3])>,
     }
 
     #[test]

@@ -16,6 +16,7 @@ pub mod optim;
 mod par_buffer;
 pub mod pose;
 pub mod readback;
+pub mod reseed;
 pub mod ssim_op;
 pub mod train;
 pub mod training_time;

@@ -253,6 +253,8 @@ pub struct Trainer {
     poses: Option<(ViewPoses, ModuleOptimizer)>,
     /// The case's [`case_fingerprint`], saved with every checkpoint.
     case_fingerprint: String,
+    /// The prior mesh, for re-seeding (`densify.reseed_at`); its voxels are made when needed.
+    prior: Option<TriMesh>,
 }
 
 /// Steps between reads of the loss values by default.
@@ -376,6 +378,7 @@ impl Trainer {
             (ViewPoses::new(views.len(), fixed, &device), AdamConfig::new().with_epsilon(1e-12).init())
         });
         let (gaussian_optim, field_optim) = new_optimizers(&cfg);
+        let cfg_reseed_off = cfg.densify.reseed_at.is_empty();
         Ok(Self {
             poses,
             optim: gaussian_optim,
@@ -401,6 +404,7 @@ impl Trainer {
             n2,
             settings,
             case_fingerprint: String::new(),
+            prior: prior.filter(|_| !cfg_reseed_off).cloned(),
         })
     }
 
@@ -588,6 +592,11 @@ impl Trainer {
             self.densify()?;
             times.densify = clock.elapsed().as_secs_f64();
         }
+        if d.reseed_at.contains(&self.iteration) {
+            let clock = Instant::now();
+            self.reseed()?;
+            times.densify += clock.elapsed().as_secs_f64();
+        }
         let log = StepLog { iteration: self.iteration, gaussians: self.model().len(), times, ..StepLog::default() };
         self.pending_logs.push((log, values));
         if self.pending_logs.len() >= self.log_every.max(1) {
@@ -682,6 +691,89 @@ impl Trainer {
         self.model = Some(model);
         self.optim = optim;
         Ok(plan)
+    }
+
+    /// Re-seeding now (`densify.reseed_at`, [`crate::method::reseed`]): Gaussians added where
+    /// every view's residual is bright; returns how many. Their scales come from their `init.knn`
+    /// nearest new neighbours (at most a voxel), their rotations are the identity and their Adam
+    /// moments zero.
+    pub fn reseed(&mut self) -> Result<usize> {
+        let cfg = &self.cfg;
+        let room = cfg.densify.max_gaussians.saturating_sub(self.model().len());
+        let n = cfg.densify.reseed_n.min(room);
+        if n == 0 {
+            return Ok(0);
+        }
+        let renders = self.render_all()?;
+        let grid = crate::data::volume::Grid::covering(&self.working_box, self.voxel_mm)?;
+        let solid = self.prior.as_ref().map(|p| crate::data::masks::prior_solid(p, grid));
+        let threshold = if cfg.densify.reseed_mask_threshold > 0.0 {
+            cfg.densify.reseed_mask_threshold
+        } else {
+            cfg.init.mask_threshold
+        };
+        let drawn = cfg.densify.reseed_from_model.then(|| self.drawn_voxels(grid));
+        let inputs = crate::method::reseed::ResidualInputs {
+            views: self.views.views(),
+            targets: &self.images,
+            renders: &renders,
+            prior: solid.as_ref(),
+            drawn: drawn.as_ref(),
+        };
+        let seed = cfg.run.seed ^ (self.iteration as u64).wrapping_mul(0x9E37_79B9);
+        let centres = crate::method::reseed::residual_seeds(
+            &cfg.init,
+            &inputs,
+            &self.working_box,
+            self.voxel_mm,
+            threshold,
+            n,
+            seed,
+        )?;
+        if centres.is_empty() {
+            return Ok(0);
+        }
+        let bounds = self.model().bounds;
+        // At most a voxel: a new Gaussian must not blot out what the model already draws.
+        let scales: Vec<f64> = crate::method::init::knn_scales(&centres, cfg.init.knn, self.voxel_mm)
+            .into_iter()
+            .map(|s| s.min(self.voxel_mm))
+            .collect();
+        let mut added = GaussianInit::default();
+        for (c, s) in centres.iter().zip(scales) {
+            added.means.extend([c.x as f32, c.y as f32, c.z as f32]);
+            added.raw_scales.extend([bounds.inverse((s as f32).clamp(bounds.min_mm, bounds.max_mm)); 3]);
+            added.rotations.extend([1.0, 0.0, 0.0, 0.0]);
+        }
+        let plan = densify::DensifyPlan { keep: (0..self.model().len()).collect(), added, ..Default::default() };
+        let (model, optim) = densify::apply(self.model().clone(), self.optim.clone(), &plan, &self.device)?;
+        self.stats = DensifyStats::new(model.len());
+        self.device_stats = None;
+        self.last_densities = None;
+        self.model = Some(model);
+        self.optim = optim;
+        self.n2 += centres.len();
+        Ok(centres.len())
+    }
+
+    /// The voxels of `grid` holding the centre of a Gaussian at least as dense as the median one.
+    fn drawn_voxels(&self, grid: crate::data::volume::Grid) -> crate::data::volume::Volume<u8> {
+        let model = self.model().valid();
+        let densities = host_vec(model.densities());
+        let means = host_vec(model.means.val());
+        let median = crate::stats::percentile(&densities.iter().map(|&d| f64::from(d)).collect::<Vec<_>>(), 50.0);
+        let mut drawn = crate::data::volume::Volume::<u8>::zeros(grid);
+        for (c, &d) in means.chunks_exact(3).zip(&densities) {
+            if f64::from(d) < median {
+                continue;
+            }
+            let ijk = [0, 1, 2].map(|a| ((f64::from(c[a]) - grid.origin_mm[a]) / grid.spacing_mm[a]).floor());
+            if ijk.iter().zip(grid.dims).all(|(&i, n)| i >= 0.0 && i < n as f64) {
+                let idx = grid.index(ijk[0] as usize, ijk[1] as usize, ijk[2] as usize);
+                drawn.data[idx] = 1;
+            }
+        }
+        drawn
     }
 
     /// Writes a checkpoint folder (model, optimizer, state); returns its path.

@@ -1,0 +1,121 @@
+//! Re-seeding from what the model does not explain: the views rendered from the current model,
+//! each view's residual `target − render` masked where it exceeds the view's vessel level, and
+//! new centres placed where every view's residual mask agrees — the image seeding of
+//! [`crate::method::init`] run again on the residuals. The prior's pixels are not lost to it:
+//! once the model draws the prior, a vessel in front of or behind it shows in the residual; a
+//! vessel the first seeds missed (faint, or cut off by the prior's projection) gets a second chance.
+
+use ctadsa_render::ConeBeamView;
+use glam::DVec3;
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+use crate::config::InitConfig;
+use crate::data::case::images::Image;
+use crate::data::masks::{Mask, vessel_level};
+use crate::data::volume::{BoxMm, Grid, Volume};
+use crate::error::Result;
+use crate::method::init::{back_project, connected_to_anchors, spread};
+
+/// What re-seeding looks at.
+pub struct ResidualInputs<'a> {
+    pub views: &'a [ConeBeamView],
+    /// The views' target images.
+    pub targets: &'a [Image],
+    /// The current model's render of every view, `H × W` each, as `targets`.
+    pub renders: &'a [Vec<f32>],
+    /// The prior as solid voxels on the seeding grid, if there is a prior.
+    pub prior: Option<&'a Volume<u8>>,
+    /// Voxels of the seeding grid that hold what the model already draws (e.g. its denser
+    /// Gaussians): with the prior, what new seeds may connect to (`None`: the prior alone).
+    pub drawn: Option<&'a Volume<u8>>,
+}
+
+/// Up to `n` new centres (mm) in `bounds` where every view's residual exceeds `mask_threshold` ×
+/// the view's vessel level, outside the prior, at least `cfg.seed_spacing_mm` apart (0: the
+/// best-scored voxels), kept connected to the prior as the image seeds are
+/// (`cfg.connected_to_prior_mm` for runs of at most `cfg.connected_max_views` views).
+pub fn residual_seeds(
+    cfg: &InitConfig,
+    inputs: &ResidualInputs,
+    bounds: &BoxMm,
+    voxel_mm: f64,
+    mask_threshold: f64,
+    n: usize,
+    seed: u64,
+) -> Result<Vec<DVec3>> {
+    if n == 0 {
+        return Ok(Vec::new());
+    }
+    let grid = Grid::covering(bounds, voxel_mm)?;
+    let residuals: Vec<Image> = inputs
+        .targets
+        .iter()
+        .zip(inputs.renders)
+        .map(|(t, r)| Image { data: t.data.iter().zip(r).map(|(&a, &b)| a - b).collect(), ..t.clone() })
+        .collect();
+    let support: Vec<Mask> = residuals
+        .iter()
+        .zip(inputs.targets)
+        .map(|(res, target)| {
+            let level = vessel_level(target, mask_threshold);
+            let data = res.data.iter().map(|&v| v as f64 > level && v > 0.0).collect();
+            Mask { width: res.width, height: res.height, data }.dilated(cfg.residual_dilation_px)
+        })
+        .collect();
+    let prior = inputs.prior.filter(|p| p.grid == grid);
+    let mut scored = back_project(&grid, inputs.views, &support, None, &residuals, prior, true);
+    if let Some(p) = prior
+        && cfg.connected_to_prior_mm > 0.0
+        && inputs.views.len() <= cfg.connected_max_views
+    {
+        // A vessel grows from what is there: the prior, and what the model already draws.
+        let reachable = match inputs.drawn.filter(|d| d.grid == grid) {
+            Some(d) => Volume { data: p.data.iter().zip(&d.data).map(|(&a, &b)| a.max(b)).collect(), ..p.clone() },
+            None => p.clone(),
+        };
+        scored = connected_to_anchors(scored, &reachable, cfg.connected_to_prior_mm, |_| false);
+    }
+    scored.sort_by(|a, b| b.0.total_cmp(&a.0));
+    if cfg.seed_spacing_mm > 0.0 {
+        scored = spread(scored, cfg.seed_spacing_mm, n);
+    }
+    scored.truncate(n);
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x2e5eed);
+    let h = voxel_mm;
+    Ok(scored
+        .into_iter()
+        .map(|(_, c, _)| {
+            c + DVec3::new(rng.random_range(-0.5..0.5), rng.random_range(-0.5..0.5), rng.random_range(-0.5..0.5)) * h
+        })
+        .collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::data::masks::prior_solid;
+    use crate::method::init::tests::{HiddenScene, hidden_scene, to_segment};
+
+    #[test]
+    fn a_vessel_behind_the_prior_is_seeded_once_the_model_draws_the_prior() {
+        let HiddenScene { prior, views, images, prior_only, bounds, hidden } = hidden_scene(&[4.5]);
+        let (views, images) = (&views[..2], &images[..2]);
+        let grid = Grid::covering(&bounds, 0.4).unwrap();
+        let solid = prior_solid(&prior, grid);
+        // A model that draws exactly the prior vessel renders its images.
+        let renders: Vec<Vec<f32>> = prior_only[..2].iter().map(|i| i.data.clone()).collect();
+        // The hidden vessel floats 4.5 mm from the prior: no connectivity filter.
+        let cfg = InitConfig { connected_to_prior_mm: 0.0, ..InitConfig::default() };
+        let inputs = ResidualInputs { views, targets: images, renders: &renders, prior: Some(&solid), drawn: None };
+        let seeds = residual_seeds(&cfg, &inputs, &bounds, 0.4, 0.05, 500, 7).unwrap();
+        let on = seeds.iter().filter(|p| to_segment(**p, hidden[0].0, hidden[0].1) < 1.5).count();
+        eprintln!("re-seeded: {on} of {} on the hidden vessel", seeds.len());
+        assert!(on > 10, "the residual shows the hidden vessel");
+        assert!(on as f64 >= 0.8 * seeds.len() as f64, "{on} of {} on it", seeds.len());
+        // A model that already draws everything leaves nothing to seed.
+        let all: Vec<Vec<f32>> = images.iter().map(|i| i.data.clone()).collect();
+        let inputs = ResidualInputs { renders: &all, ..inputs };
+        assert!(residual_seeds(&cfg, &inputs, &bounds, 0.4, 0.05, 500, 7).unwrap().is_empty());
+    }
+}
