@@ -291,6 +291,10 @@ pub struct DensifyConfig {
     /// new seeds may connect to what the model already draws (the voxels of its Gaussians at
     /// least as dense as the median one) as well as to the prior, so vessels grow from their ends.
     pub reseed_from_model: bool,
+    /// Re-seeding: a view whose pixel lies in the prior's dilated projection supports a voxel
+    /// where its target shows a vessel, when at least half of the views show residual there (the
+    /// model may draw a vessel behind the prior as a brighter prior, leaving no residual).
+    pub reseed_occluded: bool,
 }
 
 impl Default for DensifyConfig {
@@ -308,6 +312,7 @@ impl Default for DensifyConfig {
             reseed_n: 1500,
             reseed_mask_threshold: 0.0,
             reseed_from_model: false,
+            reseed_occluded: false,
         }
     }
 }

@@ -12,7 +12,7 @@ use rand_chacha::ChaCha8Rng;
 
 use crate::config::InitConfig;
 use crate::data::case::images::Image;
-use crate::data::masks::{Mask, vessel_level};
+use crate::data::masks::{Mask, silhouettes, vessel_level, vessel_mask};
 use crate::data::volume::{BoxMm, Grid, Volume};
 use crate::error::Result;
 use crate::method::init::{back_project, connected_to_anchors, spread};
@@ -34,13 +34,16 @@ pub struct ResidualInputs<'a> {
 /// Up to `n` new centres (mm) in `bounds` where every view's residual exceeds `mask_threshold` ×
 /// the view's vessel level, outside the prior, at least `cfg.seed_spacing_mm` apart (0: the
 /// best-scored voxels), kept connected to the prior as the image seeds are
-/// (`cfg.connected_to_prior_mm` for runs of at most `cfg.connected_max_views` views).
+/// (`cfg.connected_to_prior_mm` for runs of at most `cfg.connected_max_views` views). With
+/// `occluded_support`, a view whose pixel lies in the prior's dilated projection supports a
+/// voxel where its target shows a vessel, if at least half of the views show residual.
 pub fn residual_seeds(
     cfg: &InitConfig,
     inputs: &ResidualInputs,
     bounds: &BoxMm,
     voxel_mm: f64,
     mask_threshold: f64,
+    occluded_support: bool,
     n: usize,
     seed: u64,
 ) -> Result<Vec<DVec3>> {
@@ -64,7 +67,21 @@ pub fn residual_seeds(
         })
         .collect();
     let prior = inputs.prior.filter(|p| p.grid == grid);
-    let mut scored = back_project(&grid, inputs.views, &support, None, &residuals, prior, true);
+    // Where the prior hides a pixel, the model may draw a vessel behind it as a brighter prior:
+    // the view then supports a voxel without residual (when its target shows a vessel there),
+    // provided half of the views see residual.
+    let occluded: Option<Vec<Mask>> = prior.filter(|_| occluded_support).map(|p| {
+        silhouettes(p, inputs.views)
+            .iter()
+            .zip(inputs.targets)
+            .map(|(sil, t)| {
+                vessel_mask(t, mask_threshold)
+                    .dilated(cfg.residual_dilation_px)
+                    .and(&sil.dilated(cfg.prior_dilation_px))
+            })
+            .collect()
+    });
+    let mut scored = back_project(&grid, inputs.views, &support, occluded.as_deref(), &residuals, prior, true);
     if let Some(p) = prior
         && cfg.connected_to_prior_mm > 0.0
         && inputs.views.len() <= cfg.connected_max_views
@@ -108,7 +125,7 @@ mod tests {
         // The hidden vessel floats 4.5 mm from the prior: no connectivity filter.
         let cfg = InitConfig { connected_to_prior_mm: 0.0, ..InitConfig::default() };
         let inputs = ResidualInputs { views, targets: images, renders: &renders, prior: Some(&solid), drawn: None };
-        let seeds = residual_seeds(&cfg, &inputs, &bounds, 0.4, 0.05, 500, 7).unwrap();
+        let seeds = residual_seeds(&cfg, &inputs, &bounds, 0.4, 0.05, false, 500, 7).unwrap();
         let on = seeds.iter().filter(|p| to_segment(**p, hidden[0].0, hidden[0].1) < 1.5).count();
         eprintln!("re-seeded: {on} of {} on the hidden vessel", seeds.len());
         assert!(on > 10, "the residual shows the hidden vessel");
@@ -116,6 +133,29 @@ mod tests {
         // A model that already draws everything leaves nothing to seed.
         let all: Vec<Vec<f32>> = images.iter().map(|i| i.data.clone()).collect();
         let inputs = ResidualInputs { renders: &all, ..inputs };
-        assert!(residual_seeds(&cfg, &inputs, &bounds, 0.4, 0.05, 500, 7).unwrap().is_empty());
+        assert!(residual_seeds(&cfg, &inputs, &bounds, 0.4, 0.05, false, 500, 7).unwrap().is_empty());
+    }
+
+    #[test]
+    fn a_vessel_drawn_as_a_brighter_prior_is_seeded_with_occluded_support() {
+        let HiddenScene { prior, views, images, prior_only, bounds, hidden } = hidden_scene(&[4.5]);
+        let (views, images) = (&views[..2], &images[..2]);
+        let solid = prior_solid(&prior, Grid::covering(&bounds, 0.4).unwrap());
+        // View 0, where the vessel hides behind the prior, is drawn exactly (the model made the
+        // prior brighter there); view 1 shows the vessel as residual.
+        let renders = vec![images[0].data.clone(), prior_only[1].data.clone()];
+        let cfg = InitConfig { connected_to_prior_mm: 0.0, ..InitConfig::default() };
+        let inputs = ResidualInputs { views, targets: images, renders: &renders, prior: Some(&solid), drawn: None };
+        let seeds = |occluded: bool| residual_seeds(&cfg, &inputs, &bounds, 0.4, 0.05, occluded, 500, 7).unwrap();
+        let on = |s: &[DVec3]| s.iter().filter(|p| to_segment(**p, hidden[0].0, hidden[0].1) < 1.5).count();
+        let (without, with) = (seeds(false), seeds(true));
+        eprintln!(
+            "occluded support: {} of {} on the hidden vessel (without: {})",
+            on(&with),
+            with.len(),
+            without.len()
+        );
+        assert!(without.is_empty(), "no residual in view 0: nothing to intersect");
+        assert!(on(&with) > 10 && on(&with) as f64 >= 0.8 * with.len() as f64, "{} of {}", on(&with), with.len());
     }
 }

@@ -727,6 +727,7 @@ impl Trainer {
             &self.working_box,
             self.voxel_mm,
             threshold,
+            cfg.densify.reseed_occluded,
             n,
             seed,
         )?;
