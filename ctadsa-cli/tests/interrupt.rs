@@ -221,3 +221,25 @@ fn sigterm_while_writing_outputs_ends_the_process_at_once() {
     assert!(!run.join("summary.json").exists(), "the outputs were not finished");
     assert_eq!(checkpoints_in(&run.join("checkpoints")), 1, "the final checkpoint stays");
 }
+
+/// SIGTERM while the Gaussians are initialised (here made long by three million of them on the
+/// prior): no step has run, nothing to checkpoint; the process ends within 10 s, non-zero.
+#[test]
+fn sigterm_during_initialisation_ends_the_process() {
+    let (case, run) = (tmp("term-init-case"), tmp("term-init-run"));
+    small_case(&case);
+    let mut child = complete_cmd(&case, &run, 2, 0, (3_000_000, 200), &[]).stderr(Stdio::piped()).spawn().unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(1500));
+    let sent = std::time::Instant::now();
+    let kill = Command::new("kill").args(["-TERM", &child.id().to_string()]).status().unwrap();
+    assert!(kill.success());
+    let status = child.wait().unwrap();
+    let waited = sent.elapsed();
+    let mut log = String::new();
+    std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut log).unwrap();
+    assert!(!log.contains("1/2]"), "initialisation was over before the signal; log:\n{log}");
+    assert_ne!(status.code(), Some(0), "exit status {status:?}; log:\n{log}");
+    assert!(status.code().is_some(), "ended by its own handler, not killed: {status:?}");
+    assert!(waited.as_secs() < 10, "took {waited:?} to stop");
+    assert!(!run.join("summary.json").exists());
+}
