@@ -369,6 +369,10 @@ fn densification_grows_the_model_and_resumes_exactly() {
 #[test]
 fn reseeding_adds_gaussians_where_the_views_are_unexplained_and_resumes_exactly() {
     let mut cfg = tiny_config(30);
+    // Re-seeding belongs to densification (off in the tiny configuration): on, with no clone or
+    // split before the end.
+    cfg.densify.enabled = true;
+    cfg.densify.from = 1000;
     cfg.densify.reseed_at = vec![15];
     cfg.densify.reseed_n = 400;
     cfg.densify.max_gaussians = 4000;

@@ -41,11 +41,16 @@ fn shipped_configs_load_and_matrices_point_at_them() {
     // The CPU configuration is the quick one with a larger budget and a lower 3-view iso-level
     // (more recall), nothing else.
     let mut cpu = Config::load(Some(&root.join("cpu.toml")), &[]).unwrap();
+    let cpu_iterations = cpu.run.iterations;
     assert!(cpu.run.iterations > quick.run.iterations && cpu.densify.max_gaussians > quick.densify.max_gaussians);
     cpu.run.iterations = quick.run.iterations;
     cpu.densify.until = quick.densify.until;
     cpu.densify.every = quick.densify.every;
     cpu.densify.max_gaussians = quick.densify.max_gaussians;
+    // Re-seeding at the same fractions of the run.
+    let scale = |at: &[usize], n: usize| at.iter().map(|&i| i as f64 / n as f64).collect::<Vec<_>>();
+    assert_eq!(scale(&cpu.densify.reseed_at, cpu_iterations), scale(&quick.densify.reseed_at, quick.run.iterations));
+    cpu.densify.reseed_at = quick.densify.reseed_at.clone();
     assert!(cpu.output.level_mask_threshold < cpu.init.mask_threshold);
     assert_eq!(cpu.output.level_mask_threshold_two_views, quick.output.level_mask_threshold_two_views);
     cpu.output.level_mask_threshold = quick.output.level_mask_threshold;

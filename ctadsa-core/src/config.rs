@@ -280,7 +280,7 @@ pub struct DensifyConfig {
     /// iterations the views are rendered, and new Gaussians are placed where every view's
     /// residual (target − render) is bright, as the image seeds are placed at the start. The
     /// prior's pixels are not lost to it: once the model draws the prior, a vessel behind it
-    /// shows in the residual. Empty = off.
+    /// shows in the residual. Empty = off; off as well when `enabled` is false.
     pub reseed_at: Vec<usize>,
     /// Gaussians added at each re-seeding (at most; `max_gaussians` bounds the total).
     pub reseed_n: usize,

@@ -592,7 +592,7 @@ impl Trainer {
             self.densify()?;
             times.densify = clock.elapsed().as_secs_f64();
         }
-        if d.reseed_at.contains(&self.iteration) {
+        if d.enabled && d.reseed_at.contains(&self.iteration) {
             let clock = Instant::now();
             self.reseed()?;
             times.densify += clock.elapsed().as_secs_f64();
