@@ -26,12 +26,15 @@ pub struct ResidualInputs<'a> {
     pub renders: &'a [Vec<f32>],
     /// The prior as solid voxels on the seeding grid, if there is a prior.
     pub prior: Option<&'a Volume<u8>>,
+    /// The box to seed in and the voxel of the seeding grid (mm).
+    pub bounds: &'a BoxMm,
+    pub voxel_mm: f64,
     /// Voxels of the seeding grid that hold what the model already draws (e.g. its denser
     /// Gaussians): with the prior, what new seeds may connect to (`None`: the prior alone).
     pub drawn: Option<&'a Volume<u8>>,
 }
 
-/// Up to `n` new centres (mm) in `bounds` where every view's residual exceeds `mask_threshold` ×
+/// Up to `n` new centres (mm) in the inputs' box where every view's residual exceeds `mask_threshold` ×
 /// the view's vessel level, outside the prior, at least `cfg.seed_spacing_mm` apart (0: the
 /// best-scored voxels), kept connected to the prior as the image seeds are
 /// (`cfg.connected_to_prior_mm` for runs of at most `cfg.connected_max_views` views). With
@@ -40,8 +43,6 @@ pub struct ResidualInputs<'a> {
 pub fn residual_seeds(
     cfg: &InitConfig,
     inputs: &ResidualInputs,
-    bounds: &BoxMm,
-    voxel_mm: f64,
     mask_threshold: f64,
     occluded_support: bool,
     n: usize,
@@ -50,7 +51,7 @@ pub fn residual_seeds(
     if n == 0 {
         return Ok(Vec::new());
     }
-    let grid = Grid::covering(bounds, voxel_mm)?;
+    let grid = Grid::covering(inputs.bounds, inputs.voxel_mm)?;
     let residuals: Vec<Image> = inputs
         .targets
         .iter()
@@ -99,7 +100,7 @@ pub fn residual_seeds(
     }
     scored.truncate(n);
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x2e5eed);
-    let h = voxel_mm;
+    let h = inputs.voxel_mm;
     Ok(scored
         .into_iter()
         .map(|(_, c, _)| {
@@ -124,8 +125,16 @@ mod tests {
         let renders: Vec<Vec<f32>> = prior_only[..2].iter().map(|i| i.data.clone()).collect();
         // The hidden vessel floats 4.5 mm from the prior: no connectivity filter.
         let cfg = InitConfig { connected_to_prior_mm: 0.0, ..InitConfig::default() };
-        let inputs = ResidualInputs { views, targets: images, renders: &renders, prior: Some(&solid), drawn: None };
-        let seeds = residual_seeds(&cfg, &inputs, &bounds, 0.4, 0.05, false, 500, 7).unwrap();
+        let inputs = ResidualInputs {
+            views,
+            targets: images,
+            renders: &renders,
+            prior: Some(&solid),
+            bounds: &bounds,
+            voxel_mm: 0.4,
+            drawn: None,
+        };
+        let seeds = residual_seeds(&cfg, &inputs, 0.05, false, 500, 7).unwrap();
         let on = seeds.iter().filter(|p| to_segment(**p, hidden[0].0, hidden[0].1) < 1.5).count();
         eprintln!("re-seeded: {on} of {} on the hidden vessel", seeds.len());
         assert!(on > 10, "the residual shows the hidden vessel");
@@ -133,7 +142,7 @@ mod tests {
         // A model that already draws everything leaves nothing to seed.
         let all: Vec<Vec<f32>> = images.iter().map(|i| i.data.clone()).collect();
         let inputs = ResidualInputs { renders: &all, ..inputs };
-        assert!(residual_seeds(&cfg, &inputs, &bounds, 0.4, 0.05, false, 500, 7).unwrap().is_empty());
+        assert!(residual_seeds(&cfg, &inputs, 0.05, false, 500, 7).unwrap().is_empty());
     }
 
     #[test]
@@ -145,8 +154,16 @@ mod tests {
         // prior brighter there); view 1 shows the vessel as residual.
         let renders = vec![images[0].data.clone(), prior_only[1].data.clone()];
         let cfg = InitConfig { connected_to_prior_mm: 0.0, ..InitConfig::default() };
-        let inputs = ResidualInputs { views, targets: images, renders: &renders, prior: Some(&solid), drawn: None };
-        let seeds = |occluded: bool| residual_seeds(&cfg, &inputs, &bounds, 0.4, 0.05, occluded, 500, 7).unwrap();
+        let inputs = ResidualInputs {
+            views,
+            targets: images,
+            renders: &renders,
+            prior: Some(&solid),
+            bounds: &bounds,
+            voxel_mm: 0.4,
+            drawn: None,
+        };
+        let seeds = |occluded: bool| residual_seeds(&cfg, &inputs, 0.05, occluded, 500, 7).unwrap();
         let on = |s: &[DVec3]| s.iter().filter(|p| to_segment(**p, hidden[0].0, hidden[0].1) < 1.5).count();
         let (without, with) = (seeds(false), seeds(true));
         eprintln!(

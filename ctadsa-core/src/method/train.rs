@@ -718,19 +718,13 @@ impl Trainer {
             targets: &self.images,
             renders: &renders,
             prior: solid.as_ref(),
+            bounds: &self.working_box,
+            voxel_mm: self.voxel_mm,
             drawn: drawn.as_ref(),
         };
         let seed = cfg.run.seed ^ (self.iteration as u64).wrapping_mul(0x9E37_79B9);
-        let centres = crate::method::reseed::residual_seeds(
-            &cfg.init,
-            &inputs,
-            &self.working_box,
-            self.voxel_mm,
-            threshold,
-            cfg.densify.reseed_occluded,
-            n,
-            seed,
-        )?;
+        let centres =
+            crate::method::reseed::residual_seeds(&cfg.init, &inputs, threshold, cfg.densify.reseed_occluded, n, seed)?;
         if centres.is_empty() {
             return Ok(0);
         }
