@@ -93,7 +93,9 @@ impl Cell {
     /// The cell's result when it has finished with its present configuration (a readable
     /// `cell.json` of the same [`Cell::config_hash`]).
     pub fn finished(&self) -> Option<CellResult> {
-        let bytes = std::fs::read(self.dir.join("cell.json")).ok()?;
+        // Bounded and regular files only: a FIFO or /dev/zero in a cell folder must not hang or
+        // exhaust memory (it reads as "not finished").
+        let bytes = crate::error::read_file(&self.dir.join("cell.json")).ok()?;
         let result: CellResult = serde_json::from_slice(&bytes).ok()?;
         (result.config_hash.as_deref() == Some(self.config_hash.as_str())).then_some(result)
     }
@@ -130,7 +132,9 @@ impl CellLock {
                     return Ok(Self { path });
                 }
                 Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
-                    let other = std::fs::read_to_string(&path).unwrap_or_default();
+                    let other = crate::error::read_file(&path)
+                        .map(|b| String::from_utf8_lossy(&b).into_owned())
+                        .unwrap_or_default();
                     // A lock of a process of this machine that is gone (killed with SIGKILL) is
                     // stale: taken over. Another machine's cannot be checked from here.
                     if lock_is_stale(&other) {
@@ -644,6 +648,14 @@ mod tests {
         assert!(!cell.dir.join("cell.lock").exists(), "released");
         std::fs::write(cell.dir.join("cell.lock"), format!("pid {} on {}", u32::MAX - 1, hostname())).unwrap();
         drop(CellLock::take(&cell.dir).expect("a dead process's lock is taken over"));
+        // A FIFO as cell.json or as the lock: no hang, the cell is unfinished, the lock refused.
+        for name in ["cell.json", "cell.lock"] {
+            let p = cell.dir.join(name);
+            std::fs::remove_file(&p).ok();
+            assert!(std::process::Command::new("mkfifo").arg(&p).status().is_ok_and(|s| s.success()));
+        }
+        assert!(cell.finished().is_none(), "a FIFO is not a result");
+        assert!(CellLock::take(&cell.dir).is_err(), "a FIFO lock is nobody's stale lock");
         std::fs::remove_dir_all(&dir).ok();
     }
 
