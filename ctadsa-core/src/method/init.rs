@@ -166,17 +166,41 @@ pub fn n2_seeds(
             scored = connected_to_anchors(scored, s, cfg.connected_to_prior_mm, |&(_, _, full)| full);
         }
     }
+    Ok(best_centres(scored, cfg.seed_spacing_mm, cfg.n2, h, &mut rng))
+}
+
+/// The centres (mm) of the `n` best-scored voxels (of side `voxel_mm`), at least `spacing_mm`
+/// apart when it is > 0 ([`spread`]), each jittered uniformly inside its voxel.
+pub(crate) fn best_centres(
+    mut scored: Vec<Scored>,
+    spacing_mm: f64,
+    n: usize,
+    voxel_mm: f64,
+    rng: &mut ChaCha8Rng,
+) -> Vec<DVec3> {
     scored.sort_by(|a, b| b.0.total_cmp(&a.0));
-    if cfg.seed_spacing_mm > 0.0 {
-        scored = spread(scored, cfg.seed_spacing_mm, cfg.n2);
+    if spacing_mm > 0.0 {
+        scored = spread(scored, spacing_mm, n);
     }
-    scored.truncate(cfg.n2);
-    Ok(scored
+    scored.truncate(n);
+    scored
         .into_iter()
         .map(|(_, c, _)| {
-            c + DVec3::new(rng.random_range(-0.5..0.5), rng.random_range(-0.5..0.5), rng.random_range(-0.5..0.5)) * h
+            c + DVec3::new(rng.random_range(-0.5..0.5), rng.random_range(-0.5..0.5), rng.random_range(-0.5..0.5))
+                * voxel_mm
         })
-        .collect())
+        .collect()
+}
+
+/// Isotropic Gaussians with identity rotations at `centres` (mm), scales (mm) clamped to `bounds`.
+pub(crate) fn isotropic_gaussians(centres: &[DVec3], scales: &[f64], bounds: ScaleBounds) -> GaussianInit {
+    let mut g = GaussianInit::default();
+    for (c, &s) in centres.iter().zip(scales) {
+        g.means.extend([c.x as f32, c.y as f32, c.z as f32]);
+        g.raw_scales.extend([bounds.inverse((s as f32).clamp(bounds.min_mm, bounds.max_mm)); 3]);
+        g.rotations.extend([1.0, 0.0, 0.0, 0.0]);
+    }
+    g
 }
 
 /// The first `n` of `sorted` (best first) that lie at least `spacing_mm` from every one taken
@@ -298,15 +322,7 @@ pub fn initialise(
         return Err(CoreError::invalid("initialisation produced no Gaussian (empty prior and no image support)"));
     }
     let scales = knn_scales(&centres, cfg.knn, voxel_mm);
-    let mut g = GaussianInit::default();
-    for (c, s) in centres.iter().zip(scales) {
-        g.means.extend([c.x as f32, c.y as f32, c.z as f32]);
-        let s = (s as f32).clamp(scale_bounds.min_mm, scale_bounds.max_mm);
-        let raw = scale_bounds.inverse(s);
-        g.raw_scales.extend([raw; 3]);
-        g.rotations.extend([1.0, 0.0, 0.0, 0.0]);
-    }
-    Ok(Initialisation { gaussians: g, n1, n2 })
+    Ok(Initialisation { gaussians: isotropic_gaussians(&centres, &scales, scale_bounds), n1, n2 })
 }
 
 #[cfg(test)]

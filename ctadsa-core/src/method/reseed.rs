@@ -5,9 +5,11 @@
 //! once the model draws the prior, a vessel in front of or behind it shows in the residual; a
 //! vessel the first seeds missed (faint, or cut off by the prior's projection) gets a second chance.
 
+use std::borrow::Cow;
+
 use ctadsa_render::ConeBeamView;
 use glam::DVec3;
-use rand::{RngExt, SeedableRng};
+use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use crate::config::InitConfig;
@@ -15,7 +17,7 @@ use crate::data::case::images::Image;
 use crate::data::masks::{Mask, silhouettes, vessel_level, vessel_mask};
 use crate::data::volume::{BoxMm, Grid, Volume};
 use crate::error::Result;
-use crate::method::init::{back_project, connected_to_anchors, spread};
+use crate::method::init::{back_project, best_centres, connected_to_anchors};
 
 /// What re-seeding looks at.
 pub struct ResidualInputs<'a> {
@@ -89,24 +91,17 @@ pub fn residual_seeds(
     {
         // A vessel grows from what is there: the prior, and what the model already draws.
         let reachable = match inputs.drawn.filter(|d| d.grid == grid) {
-            Some(d) => Volume { data: p.data.iter().zip(&d.data).map(|(&a, &b)| a.max(b)).collect(), ..p.clone() },
-            None => p.clone(),
+            Some(d) => Cow::Owned(Volume {
+                grid,
+                index_to_world: p.index_to_world,
+                data: p.data.iter().zip(&d.data).map(|(&a, &b)| a.max(b)).collect(),
+            }),
+            None => Cow::Borrowed(p),
         };
         scored = connected_to_anchors(scored, &reachable, cfg.connected_to_prior_mm, |_| false);
     }
-    scored.sort_by(|a, b| b.0.total_cmp(&a.0));
-    if cfg.seed_spacing_mm > 0.0 {
-        scored = spread(scored, cfg.seed_spacing_mm, n);
-    }
-    scored.truncate(n);
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x2e5eed);
-    let h = inputs.voxel_mm;
-    Ok(scored
-        .into_iter()
-        .map(|(_, c, _)| {
-            c + DVec3::new(rng.random_range(-0.5..0.5), rng.random_range(-0.5..0.5), rng.random_range(-0.5..0.5)) * h
-        })
-        .collect())
+    Ok(best_centres(scored, cfg.seed_spacing_mm, n, inputs.voxel_mm, &mut rng))
 }
 
 #[cfg(test)]

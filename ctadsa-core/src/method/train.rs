@@ -728,18 +728,12 @@ impl Trainer {
         if centres.is_empty() {
             return Ok(0);
         }
-        let bounds = self.model().bounds;
         // At most a voxel: a new Gaussian must not blot out what the model already draws.
         let scales: Vec<f64> = crate::method::init::knn_scales(&centres, cfg.init.knn, self.voxel_mm)
             .into_iter()
             .map(|s| s.min(self.voxel_mm))
             .collect();
-        let mut added = GaussianInit::default();
-        for (c, s) in centres.iter().zip(scales) {
-            added.means.extend([c.x as f32, c.y as f32, c.z as f32]);
-            added.raw_scales.extend([bounds.inverse((s as f32).clamp(bounds.min_mm, bounds.max_mm)); 3]);
-            added.rotations.extend([1.0, 0.0, 0.0, 0.0]);
-        }
+        let added = crate::method::init::isotropic_gaussians(&centres, &scales, self.model().bounds);
         let plan = densify::DensifyPlan { keep: (0..self.model().len()).collect(), added, ..Default::default() };
         let (model, optim) = densify::apply(self.model().clone(), self.optim.clone(), &plan, &self.device)?;
         self.stats = DensifyStats::new(model.len());
