@@ -154,6 +154,10 @@ fn out_of_range_config_values_are_refused_naming_the_key() {
         ("loss.pa_k=1000000000000", "loss.pa_k"),
         // Refused before training, not after it.
         ("output.voxel_mm=0.011", "output.voxel_mm"),
+        // One view twice would pass for two directions.
+        ("run.views=[0, 0]", "run.views"),
+        ("densify.reseed_mask_threshold=nan", "densify.reseed_mask_threshold"),
+        ("init.seed_spacing_mm=-1", "init.seed_spacing_mm"),
     ] {
         refused(&dir, &["complete", "--case", &case, "--config", &config, "--out", "out/run", "--set", set], &[key]);
     }
@@ -187,6 +191,23 @@ fn malformed_case_files_are_refused_and_nothing_escapes() {
         edited_case(&dir, "no-views", |j| j["views"] = serde_json::json!([])),
         edited_case(&dir, "bad-geometry", |j| j["views"][0]["geometry"]["dso_mm"] = 0.0.into()),
         edited_case(&dir, "duplicate-view-names", |j| j["views"][1]["name"] = j["views"][0]["name"].clone()),
+        // More views than are read, and detectors too large together: refused before any image
+        // is read (each view may name the same 2 GiB file).
+        edited_case(&dir, "too-many-views", |j| {
+            let view = j["views"][0].clone();
+            j["views"] = (0..65)
+                .map(|i| {
+                    let mut v = view.clone();
+                    v["name"] = format!("v{i}").into();
+                    v
+                })
+                .collect();
+        }),
+        edited_case(&dir, "huge-detectors", |j| {
+            for v in j["views"].as_array_mut().unwrap() {
+                v["geometry"]["detector_px"] = serde_json::json!([32768, 32768]);
+            }
+        }),
     ];
     for case in &cases {
         refused(&dir, &["complete", "--case", case, "--config", &config, "--out", "out/run"], &["case.json"]);
@@ -350,11 +371,22 @@ fn malformed_dicom_runs_are_refused_naming_the_tag() {
     patch_element(&mut huge, 0x0028, 0x0011, [0xff, 0xff]); // Columns
     patch_element(&mut huge, 0x0028, 0x0008, *b"99"); // Number of Frames
     std::fs::write(dir.join("huge.dcm"), &huge).unwrap();
-    refused(&dir, &["import-dsa", "--run", "huge.dcm", "--out", "out/case"], &["huge.dcm", "Pixel Data"]);
+    refused(&dir, &["import-dsa", "--run", "huge.dcm", "--out", "out/case"], &["huge.dcm", "pixels; at most"]);
+    let mut taller = good.clone();
+    patch_element(&mut taller, 0x0028, 0x0010, 1024u16.to_le_bytes()); // Rows: 4× the pixels stored
+    std::fs::write(dir.join("taller.dcm"), &taller).unwrap();
+    refused(&dir, &["import-dsa", "--run", "taller.dcm", "--out", "out/case"], &["taller.dcm", "Pixel Data holds"]);
     let mut frames = good.clone();
     patch_element(&mut frames, 0x0028, 0x0008, *b"x "); // Number of Frames
     std::fs::write(dir.join("frames.dcm"), &frames).unwrap();
     refused(&dir, &["import-dsa", "--run", "frames.dcm", "--out", "out/case"], &["frames.dcm", "Number of Frames"]);
+    // A Pixel Data length field claiming 4 GiB in a 1 MB file: refused from the headers, before
+    // the parser reserves what the field claims.
+    let at = good.windows(6).position(|w| w == [0xE0, 0x7F, 0x10, 0x00, b'O', b'W']).unwrap();
+    let mut claims = good.clone();
+    claims[at + 8..at + 12].copy_from_slice(&0xFFFF_FFF0u32.to_le_bytes());
+    std::fs::write(dir.join("claims.dcm"), &claims).unwrap();
+    refused(&dir, &["import-dsa", "--run", "claims.dcm", "--out", "out/case"], &["claims.dcm", "(7FE0,0010)"]);
     std::fs::write(dir.join("cut.dcm"), &good[..good.len() / 2]).unwrap();
     refused(&dir, &["import-dsa", "--run", "cut.dcm", "--out", "out/case"], &["cut.dcm"]);
     std::fs::write(dir.join("not.dcm"), b"hello").unwrap();

@@ -22,6 +22,14 @@ pub const CASE_VERSION: u32 = 1;
 /// The case file name inside a case folder.
 pub const CASE_FILE: &str = "case.json";
 
+/// The most views a case may have (a biplane C-arm gives 2, the paper uses 2–3; rotational runs
+/// subsampled for training rarely exceed a few dozen).
+pub const MAX_VIEWS: usize = 64;
+
+/// The most detector pixels of all views together (kept as `f32`: 2 GiB, e.g. 64 views of
+/// 2048² pixels), checked before any image is read.
+pub const MAX_TOTAL_PIXELS: u64 = 1 << 29;
+
 /// Where the data came from.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -239,6 +247,16 @@ impl CaseFile {
         if file.views.is_empty() {
             return Err(CoreError::format(path, "the case has no views"));
         }
+        if file.views.len() > MAX_VIEWS {
+            return Err(CoreError::format(path, format!("{} views; at most {MAX_VIEWS} are read", file.views.len())));
+        }
+        let pixels: u64 = file.views.iter().map(|v| v.geometry.detector_px()).map(|[w, h]| w as u64 * h as u64).sum();
+        if pixels > MAX_TOTAL_PIXELS {
+            return Err(CoreError::format(
+                path,
+                format!("the views' detectors hold {pixels} pixels together; at most {MAX_TOTAL_PIXELS} are read"),
+            ));
+        }
         check_file_name(&file.name, "case name").map_err(|e| CoreError::format(path, e))?;
         let mut names = std::collections::BTreeSet::new();
         for v in &file.views {
@@ -329,6 +347,15 @@ impl Case {
                     self.file.views.len()
                 )));
             }
+        }
+        // The same view twice would count its pixels double and pass for a second direction.
+        for (k, &i) in indices.iter().enumerate() {
+            if indices[..k].contains(&i) {
+                return Err(CoreError::invalid(format!("view {i} is selected twice (`run.views`: {indices:?})")));
+            }
+        }
+        if indices.is_empty() {
+            return Err(CoreError::invalid("no view selected (`run.views` is empty)"));
         }
         out.file.views = indices.iter().map(|&i| self.file.views[i].clone()).collect();
         out.images = indices.iter().map(|&i| self.images[i].clone()).collect();

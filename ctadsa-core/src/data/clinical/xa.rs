@@ -78,14 +78,20 @@ fn element_int(obj: &DefaultDicomObject, path: &Path, tag: Tag) -> Result<Option
 /// The most frames a run may claim (a 30 fps run of five minutes is 9,000).
 pub const MAX_FRAMES: i64 = 10_000;
 
+/// The most pixels a run's frames may hold together (the frames are kept as `f32`: 2 GiB); a
+/// 1024² run of 300 frames is 315 million.
+pub const MAX_PIXELS: i64 = 1 << 29;
+
 /// Reads a DSA run. Errors name the file and every missing tag.
 pub fn read_xa_run(path: &Path) -> Result<XaRun> {
     if !path.exists() {
         return Err(CoreError::io(path, std::io::Error::new(std::io::ErrorKind::NotFound, "no such file")));
     }
-    crate::error::check_input_file(path)?;
+    let bytes = crate::error::read_file(path)?;
+    super::dicom_scan::check_dicom_lengths(&bytes).map_err(|problem| CoreError::format(path, problem))?;
+    drop(bytes);
     let obj = open_file(path).map_err(|e| CoreError::format(path, format!("not a readable DICOM file: {e}")))?;
-    check_modality_and_syntax(&obj, path)?;
+    check_modality_and_tags(&obj, path)?;
     let layout = PixelLayout::read(&obj, path)?;
     let frames = read_frames(&obj, path, &layout)?;
     let geometry = read_geometry(&obj, path)?;
@@ -119,24 +125,13 @@ pub fn read_xa_run(path: &Path) -> Result<XaRun> {
     })
 }
 
-/// XA or RF, uncompressed little endian, with every tag the geometry and pixels need.
-fn check_modality_and_syntax(obj: &DefaultDicomObject, path: &Path) -> Result<()> {
+/// XA or RF (the transfer syntax was checked by `check_dicom_lengths`), with every tag the geometry and pixels need.
+fn check_modality_and_tags(obj: &DefaultDicomObject, path: &Path) -> Result<()> {
     let modality = element_str(obj, tags::MODALITY).unwrap_or_default();
     if modality != "XA" && modality != "RF" {
         return Err(CoreError::format(
             path,
             format!("modality is `{modality}`, expected XA (X-ray angiography) or RF (fluoroscopy)"),
-        ));
-    }
-    let ts = obj.meta().transfer_syntax().trim_end_matches('\0').to_string();
-    let native = [uids::EXPLICIT_VR_LITTLE_ENDIAN, uids::IMPLICIT_VR_LITTLE_ENDIAN];
-    if !native.contains(&ts.as_str()) {
-        return Err(CoreError::format(
-            path,
-            format!(
-                "transfer syntax {ts} is not uncompressed little endian; decompress first \
-                 (e.g. `gdcmconv --raw in.dcm out.dcm` or `dcmdjpeg in.dcm out.dcm`)"
-            ),
         ));
     }
     let required = [
@@ -198,6 +193,16 @@ impl PixelLayout {
             return Err(CoreError::format(
                 path,
                 format!("Number of Frames (0028,0008) is {frames}; at most {MAX_FRAMES} are read"),
+            ));
+        }
+        let pixels = rows * columns * frames;
+        if pixels > MAX_PIXELS {
+            return Err(CoreError::format(
+                path,
+                format!(
+                    "{columns} × {rows} pixels × {frames} frames is {pixels} pixels; at most {MAX_PIXELS} \
+                     (2 GiB as 32-bit values) are read"
+                ),
             ));
         }
         if samples != 1 {
