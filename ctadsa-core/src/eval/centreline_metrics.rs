@@ -38,6 +38,8 @@ pub struct CentrelineMatch {
     /// The predicted new segments, and for each whether most of its length is on a true vessel.
     pub new_segments: Vec<Segment>,
     pub new_true: Vec<bool>,
+    /// For each new segment: the part of its length on a true vessel (mm).
+    pub new_true_length_mm: Vec<f64>,
 }
 
 /// Points of every segment, each tagged with its segment's index.
@@ -116,10 +118,15 @@ pub fn score_centreline(
         radius_error_mm: ratio(abs_err, true_length),
         radius_bias_mm: ratio(err, true_length),
     };
+    let mut new_true_length_mm = vec![0.0; new_segments.len()];
+    for ((p, &t), _) in new_points.iter().zip(&new_tags).zip(&on_truth).filter(|(_, ok)| **ok) {
+        new_true_length_mm[t] += p.length_mm;
+    }
     let verdicts = CentrelineMatch {
         missing_found: majority(&missing_points, &missing_tags, &found, missing.len()),
         new_true: majority(&new_points, &new_tags, &on_truth, new_segments.len()),
         new_segments,
+        new_true_length_mm,
     };
     (scores, verdicts)
 }

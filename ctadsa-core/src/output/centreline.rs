@@ -5,6 +5,7 @@
 
 use std::path::Path;
 
+use ctadsa_render::ConeBeamView;
 use glam::DVec3;
 use rayon::prelude::*;
 use serde::Serialize;
@@ -20,9 +21,13 @@ use crate::data::volume::Volume;
 use crate::data::volume::skeleton::{SkeletonParams, skeletonize};
 use crate::error::Result;
 use crate::eval::centreline_metrics::{CentrelineMatch, CentrelineScores, score_centreline};
+use crate::output::confidence::{
+    CONFIDENCE_BINS, ConfidenceBin, bin_of, branch_confidence, confidence_bins, confidence_rgb, node_confidence,
+    write_branches_csv,
+};
 
 /// What a run's centreline is and how it scores.
-#[derive(Debug, Clone, Copy, Serialize)]
+#[derive(Debug, Clone, Serialize)]
 pub struct CentrelineSummary {
     pub nodes: usize,
     /// Total centreline length and the part on new vessels (mm).
@@ -30,6 +35,12 @@ pub struct CentrelineSummary {
     pub new_length_mm: f64,
     /// Against the case's true tree, when it has one.
     pub scores: Option<CentrelineScores>,
+    /// Branches of the centreline, and those new.
+    pub branches: usize,
+    pub new_branches: usize,
+    /// The new centreline by confidence ([`crate::output::confidence`]): length per bin, and
+    /// with a true tree the part on a true vessel (precision per bin: the reliability diagram).
+    pub confidence_bins: Vec<ConfidenceBin>,
 }
 
 /// One part of the completed solid: its voxels and its surface.
@@ -99,32 +110,82 @@ pub fn completed_centreline(
     tree
 }
 
-/// Writes `centreline.swc` and `centreline.vtp`, and with a true tree scores the centreline and
-/// draws `centreline.png` (true missing vessels found / missed, false new branches).
+/// Writes `centreline.swc`, `centreline.vtp` (with each node's `Confidence`), `branches.csv`
+/// and `confidence.png` (new branches coloured by confidence, [`branch_confidence`] in `views`),
+/// and with a true tree scores the centreline, by confidence bin too, and draws
+/// `centreline.png` (true missing vessels found / missed, false new branches). Returns the
+/// summary and every node's confidence.
 pub fn write_centreline(
     dir: &Path,
     tree: &VesselTree,
+    views: &[ConeBeamView],
     truth: Option<(&[Segment], &[Segment])>,
-) -> Result<CentrelineSummary> {
+) -> Result<(CentrelineSummary, Vec<f64>)> {
     let header = format!(
         "ctadsa completed centreline: positions and radii in mm (world coordinates of the case)\n\
          type {KIND_PRIOR_VESSEL} = vessel of the prior (CTA), type {KIND_NEW_VESSEL} = new vessel found from the views"
     );
     write_swc(&dir.join("centreline.swc"), tree, &header)?;
-    write_vtp(&dir.join("centreline.vtp"), tree)?;
+    let branches = branch_confidence(tree, views);
+    let confidence = node_confidence(tree, &branches);
+    write_vtp(&dir.join("centreline.vtp"), tree, &[("Confidence", &confidence)])?;
+    write_branches_csv(&dir.join("branches.csv"), &branches, views.len())?;
     let segments = tree.segments();
+    draw_confidence(&dir.join("confidence.png"), &segments, tree, &confidence)?;
     let length_mm = segments.iter().map(Segment::length_mm).sum();
     let new_length_mm =
         segments.iter().filter(|s| tree.nodes[s.child].kind == KIND_NEW_VESSEL).map(Segment::length_mm).sum();
-    let scores = match truth {
+    let (scores, confidence_bins) = match truth {
         Some((missing, whole)) if !missing.is_empty() => {
             let (scores, verdicts) = score_centreline(tree, missing, whole);
             draw_verdicts(&dir.join("centreline.png"), &segments, missing, &verdicts)?;
-            Some(scores)
+            let pieces = verdicts
+                .new_segments
+                .iter()
+                .zip(&verdicts.new_true_length_mm)
+                .map(|(s, &t)| (confidence[s.child], s.length_mm(), Some(t)));
+            (Some(scores), confidence_bins(pieces))
         }
-        _ => None,
+        _ => {
+            let new = segments.iter().filter(|s| tree.nodes[s.child].kind == KIND_NEW_VESSEL);
+            (None, confidence_bins(new.map(|s| (confidence[s.child], s.length_mm(), None))))
+        }
     };
-    Ok(CentrelineSummary { nodes: tree.nodes.len(), length_mm, new_length_mm, scores })
+    let summary = CentrelineSummary {
+        nodes: tree.nodes.len(),
+        length_mm,
+        new_length_mm,
+        scores,
+        branches: branches.len(),
+        new_branches: branches.iter().filter(|b| b.new).count(),
+        confidence_bins,
+    };
+    Ok((summary, confidence))
+}
+
+/// `confidence.png`: the prior's centreline in grey, the new branches coloured by confidence
+/// ([`confidence_rgb`], one colour per bin); four views.
+fn draw_confidence(path: &Path, segments: &[Segment], tree: &VesselTree, confidence: &[f64]) -> Result<()> {
+    let prior: Vec<Segment> =
+        segments.iter().filter(|s| tree.nodes[s.child].kind != KIND_NEW_VESSEL).copied().collect();
+    let context = segment_tubes(&prior, 0.15, 5);
+    let bins: Vec<TriMesh> = (0..CONFIDENCE_BINS)
+        .map(|k| {
+            let in_bin: Vec<Segment> = segments
+                .iter()
+                .filter(|s| tree.nodes[s.child].kind == KIND_NEW_VESSEL && bin_of(confidence[s.child]) == k)
+                .copied()
+                .collect();
+            segment_tubes(&in_bin, 0.3, 6)
+        })
+        .collect();
+    let mut parts = vec![Coloured { mesh: &context, rgb: CONTEXT_RGB }];
+    for (k, mesh) in bins.iter().enumerate() {
+        parts.push(Coloured { mesh, rgb: confidence_rgb((k as f64 + 0.5) / CONFIDENCE_BINS as f64) });
+    }
+    let mut views = standard_views(320);
+    views.push(OrbitView { azimuth_deg: 0.0, elevation_deg: 89.0, width: 320, height: 320 });
+    write_mesh_png(path, &parts, &views)
 }
 
 /// Colours of `centreline.png`.

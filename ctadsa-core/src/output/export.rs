@@ -30,6 +30,7 @@ use crate::method::model::host_vec;
 use crate::method::train::{StepLog, Trainer};
 use crate::method::training_time::TrainingTime;
 use crate::output::centreline::{CentrelineSummary, SolidPart, completed_centreline, write_centreline};
+use crate::output::confidence::{MESH_CONFIDENCE, write_mesh_confidence};
 use crate::output::extraction::{
     LevelScore, best_level, completed_solid, density_scale, faint_level_field, join_prior, keep_connected_to_prior,
     prior_solid, score_levels,
@@ -236,8 +237,15 @@ pub fn write_outputs(dir: &Path, case: &Case, trainer: &Trainer, member: Option<
     let surface = extract_completed_surface(dir, trainer, &volume, prior.as_ref())?;
     let mesh = &surface.mesh;
     let truth = CaseTruth::load(case)?;
-    let (centreline, topology) =
-        write_centreline_of(dir, &volume, &surface, prior.as_ref(), &cfg.output, truth.as_ref())?;
+    let (centreline, topology) = write_centreline_of(
+        dir,
+        &volume,
+        &surface,
+        prior.as_ref(),
+        &cfg.output,
+        trainer.views.views(),
+        truth.as_ref(),
+    )?;
     let renders = trainer.render_all()?;
     write_renders(dir, case, trainer, &renders)?;
     write_loss(dir, &trainer.history)?;
@@ -407,6 +415,7 @@ fn write_centreline_of(
     surface: &CompletedSurface,
     prior: Option<&TriMesh>,
     out: &OutputConfig,
+    views: &[ConeBeamView],
     truth: Option<&CaseTruth>,
 ) -> Result<(CentrelineSummary, Option<TopologyScores>)> {
     let above_level = completed_solid(surface.field.as_ref().unwrap_or(volume), surface.field_level, None);
@@ -443,7 +452,9 @@ fn write_centreline_of(
         topology_scores(&completed, &true_solid, &tree.segments(), skeleton)
     });
     let truth = truth.and_then(|t| t.missing_centreline.as_deref().zip(t.centreline.as_deref()));
-    Ok((write_centreline(dir, &tree, truth)?, topology))
+    let (summary, confidence) = write_centreline(dir, &tree, views, truth)?;
+    write_mesh_confidence(&dir.join(MESH_CONFIDENCE), &surface.mesh, &tree, &confidence)?;
+    Ok((summary, topology))
 }
 
 /// `loss.csv` and `loss.png` (log scale; a term is drawn where it is positive).

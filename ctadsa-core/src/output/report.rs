@@ -14,6 +14,10 @@ use crate::data::mesh::TriMesh;
 use crate::data::mesh::io::read_mesh;
 use crate::data::mesh::split::split_by_distance;
 use crate::error::{CoreError, Result, read_file, write_file};
+use crate::eval::metrics::nearest_points;
+use crate::output::confidence::{
+    CONFIDENCE_BINS, MESH_CONFIDENCE, confidence_rgb, faces_by_confidence, read_mesh_confidence,
+};
 use crate::output::viewer::{ViewerPart, viewer_html};
 
 /// The report's file name inside the run folder.
@@ -216,8 +220,9 @@ fn completed_tree(html: &mut String, run_dir: &Path) -> Result<()> {
     Ok(())
 }
 
-/// The completed surface as an interactive 3-D view: where the prior had vessels in red, the
-/// new vessels in blue (as `mesh-completion.png`).
+/// The completed surface as an interactive 3-D view: where the prior had vessels in grey, the
+/// new vessels coloured by confidence (`mesh-confidence.ply`; without it the prior red and the
+/// new vessels blue, as `mesh-completion.png`).
 fn interactive_view(html: &mut String, run_dir: &Path, case: Option<&CaseFile>, case_dir: Option<&Path>) {
     let Some(mesh_path) = ["obj", "ply", "stl"].iter().map(|e| run_dir.join(format!("mesh.{e}"))).find(|p| p.exists())
     else {
@@ -233,10 +238,51 @@ fn interactive_view(html: &mut String, run_dir: &Path, case: Option<&CaseFile>, 
         Some(p) => split_by_distance(&mesh, p, 1.0),
         None => (TriMesh::default(), mesh),
     };
-    html.push_str(&viewer_html(&[
-        ViewerPart { name: "prior", mesh: &old, rgb: [210, 60, 50] },
-        ViewerPart { name: "new vessels", mesh: &new, rgb: [60, 120, 220] },
-    ]));
+    // The new vessels coloured by confidence where the run wrote it (`mesh-confidence.ply`).
+    let by_confidence = read_mesh_confidence(&run_dir.join(MESH_CONFIDENCE)).ok().map(|(scored, confidence)| {
+        let nearest = nearest_points(&new.vertices, &scored.vertices);
+        let at: Vec<f32> = nearest.iter().map(|&(_, i)| confidence.get(i).copied().unwrap_or(1.0)).collect();
+        faces_by_confidence(&new, &at)
+    });
+    let names: Vec<String> = (0..CONFIDENCE_BINS)
+        .map(|k| {
+            format!(
+                "new vessels, confidence {:.1}–{:.1}",
+                k as f64 / CONFIDENCE_BINS as f64,
+                (k + 1) as f64 / CONFIDENCE_BINS as f64
+            )
+        })
+        .collect();
+    // The prior grey beside the confidence colours (red to green), red beside plain blue.
+    let prior_rgb = if by_confidence.is_some() { [150, 150, 150] } else { [210, 60, 50] };
+    let mut parts = vec![ViewerPart { name: "prior", mesh: &old, rgb: prior_rgb }];
+    match &by_confidence {
+        Some(bins) => {
+            for (k, mesh) in bins.iter().enumerate() {
+                let rgb = confidence_rgb((k as f64 + 0.5) / CONFIDENCE_BINS as f64);
+                parts.push(ViewerPart { name: &names[k], mesh, rgb });
+            }
+            html.push_str(&confidence_key("prior"));
+        }
+        None => parts.push(ViewerPart { name: "new vessels", mesh: &new, rgb: [60, 120, 220] }),
+    }
+    html.push_str(&viewer_html(&parts));
+}
+
+/// The colour key of the confidence pictures, after a grey entry named `context`.
+fn confidence_key(context: &str) -> String {
+    let mut key = format!("<p class=\"key\"><span style=\"background:#969696\">{context}</span>");
+    for k in 0..CONFIDENCE_BINS {
+        let [r, g, b] = confidence_rgb((k as f64 + 0.5) / CONFIDENCE_BINS as f64);
+        let _ = write!(
+            key,
+            "<span style=\"background:#{r:02x}{g:02x}{b:02x}\">confidence {:.1}–{:.1}</span>",
+            k as f64 / CONFIDENCE_BINS as f64,
+            (k + 1) as f64 / CONFIDENCE_BINS as f64
+        );
+    }
+    key.push_str("</p>");
+    key
 }
 
 /// Scores of the completed surface and of the prior alone, when the case has ground truth.
@@ -301,6 +347,38 @@ fn centreline(html: &mut String, run_dir: &Path, summary: &Value) -> Result<()> 
             "<p class=\"key\"><span style=\"background:#28a046\">missing vessel found</span>              <span style=\"background:#eb8c14\">missing vessel missed</span>              <span style=\"background:#c828c8\">new branch on no true vessel</span>              <span style=\"background:#aaaaaa\">completed centreline</span></p>",
         );
         html.push_str(&png_tag(&picture, "true missing vessels found and missed, false new branches")?);
+    }
+    confidence(html, run_dir, c)
+}
+
+/// Which new branches to trust: the confidence picture and, with a true tree, the precision of
+/// the new centreline per confidence bin.
+fn confidence(html: &mut String, run_dir: &Path, centreline: &Value) -> Result<()> {
+    let picture = run_dir.join("confidence.png");
+    if !picture.exists() {
+        return Ok(());
+    }
+    html.push_str(
+        "<h3>Confidence of the new vessels</h3><p>Each new branch's confidence is the share of it that \
+         the views show on their own (pixels no other branch covers), in the second-least supporting \
+         view (docs/METRICS.md); per branch in <code>branches.csv</code>, per node in \
+         <code>centreline.vtp</code> (<code>Confidence</code>), per vertex in <code>mesh-confidence.ply</code>.</p>",
+    );
+    html.push_str(&confidence_key("prior centreline"));
+    html.push_str(&png_tag(&picture, "new branches coloured by confidence")?);
+    if let Some(bins) = centreline["confidence_bins"].as_array() {
+        html.push_str("<table><tr><th>confidence</th><th>new length (mm)</th><th>on a true vessel</th></tr>");
+        for b in bins {
+            let _ = write!(
+                html,
+                "<tr><td>{}–{}</td><td>{}</td><td>{}</td></tr>",
+                num(&b["from"]),
+                num(&b["to"]),
+                num(&b["new_length_mm"]),
+                num(&b["precision"])
+            );
+        }
+        html.push_str("</table>");
     }
     Ok(())
 }

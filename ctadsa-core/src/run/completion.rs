@@ -67,7 +67,7 @@ pub fn holds_run(out: &Path) -> bool {
 
 /// The files and folders (besides `mesh*.{obj,ply,stl}`, the checkpoints and the member's
 /// folder) that a run writes into its folder; `--overwrite` removes them.
-const RUN_OUTPUTS: [&str; 15] = [
+const RUN_OUTPUTS: [&str; 17] = [
     "summary.json",
     "report.html",
     "config.toml",
@@ -81,6 +81,8 @@ const RUN_OUTPUTS: [&str; 15] = [
     "centreline.swc",
     "centreline.vtp",
     "centreline.png",
+    "branches.csv",
+    "confidence.png",
     "poses.json",
     "checkpoints",
 ];

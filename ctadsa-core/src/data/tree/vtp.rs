@@ -25,8 +25,9 @@ fn data_array(out: &mut String, kind: &str, name: &str, components: usize, value
     out.push_str("\n        </DataArray>\n");
 }
 
-/// The tree as a `.vtp` document.
-pub fn vtp_text(tree: &VesselTree) -> String {
+/// The tree as a `.vtp` document, with extra per-node `Float64` arrays `point_arrays` (name,
+/// one value per node).
+pub fn vtp_text(tree: &VesselTree, point_arrays: &[(&str, &[f64])]) -> String {
     let branches = tree.branches();
     let lines: usize = branches.len();
     let mut out = String::from("<?xml version=\"1.0\"?>\n");
@@ -42,6 +43,9 @@ pub fn vtp_text(tree: &VesselTree) -> String {
     data_array(&mut out, "Float64", "Radius", 1, radii());
     data_array(&mut out, "Float64", "MaximumInscribedSphereRadius", 1, radii());
     data_array(&mut out, "Int32", "SwcType", 1, tree.nodes.iter().map(|n| n.kind.to_string()));
+    for (name, values) in point_arrays {
+        data_array(&mut out, "Float64", name, 1, values.iter().map(|v| format!("{v:.4}")));
+    }
     out.push_str("      </PointData>\n      <Points>\n");
     data_array(
         &mut out,
@@ -64,9 +68,9 @@ pub fn vtp_text(tree: &VesselTree) -> String {
     out
 }
 
-/// Writes the tree as `.vtp` (atomically).
-pub fn write_vtp(path: &Path, tree: &VesselTree) -> Result<()> {
-    write_file(path, vtp_text(tree).as_bytes())
+/// Writes the tree as `.vtp` (atomically), with [`vtp_text`]'s extra `point_arrays`.
+pub fn write_vtp(path: &Path, tree: &VesselTree, point_arrays: &[(&str, &[f64])]) -> Result<()> {
+    write_file(path, vtp_text(tree, point_arrays).as_bytes())
 }
 
 #[cfg(test)]
@@ -96,7 +100,8 @@ mod tests {
                 node(2.0, 1.0, Some(2), 4),
             ],
         };
-        let text = vtp_text(&tree);
+        let confidence = [1.0, 1.0, 1.0, 1.0, 1.0, 0.25];
+        let text = vtp_text(&tree, &[("Confidence", &confidence)]);
         assert!(text.contains("NumberOfPoints=\"6\"") && text.contains("NumberOfLines=\"3\""), "{text}");
         let array = |name: &str| {
             let start = text.find(&format!("Name=\"{name}\"")).unwrap();
@@ -110,5 +115,6 @@ mod tests {
         assert_eq!(array("SwcType"), ["3", "3", "3", "3", "3", "4"]);
         assert_eq!(array("Radius")[4], "1.4000");
         assert_eq!(array("Points").len(), 18);
+        assert_eq!(array("Confidence")[5], "0.2500");
     }
 }

@@ -1,0 +1,530 @@
+//! Which new vessels to trust: a confidence in [0, 1] for every branch of the completed
+//! centreline, from how much of it the views show on their own.
+//!
+//! A vessel the views really show has, in the views that place it, pixels that nothing else in
+//! the completed tree covers. A ghost — a branch put where the back-projections of two other
+//! vessels cross, which two views cannot tell from a vessel — projects onto those two vessels in
+//! each view: it has no pixel of its own. So every branch of the completed centreline (prior
+//! branches included) is drawn into every view as its tube's footprint, and a branch's *unique
+//! support* in a view is the share of its length (away from its junctions) whose projected axis
+//! falls on a pixel no other branch covers. A branch is placed by two views: its confidence is
+//! the second-lowest unique support over the views (with 2 views the lower one, with 3 the
+//! middle one), so that a vessel hidden in one of three views keeps its confidence. Prior branches
+//! have confidence 1.
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use ctadsa_render::ConeBeamView;
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+
+use crate::data::mesh::TriMesh;
+use crate::data::tree::{KIND_NEW_VESSEL, KIND_PRIOR_VESSEL, VesselTree};
+use crate::error::{CoreError, Result, read_file, write_file};
+use crate::eval::metrics::nearest_points;
+
+/// Bins of the confidence in `summary.json` and the pictures: `[k/BINS, (k+1)/BINS)`, the last
+/// one closed.
+pub const CONFIDENCE_BINS: usize = 5;
+
+/// Step of the samples along a branch (mm).
+const SAMPLE_MM: f64 = 0.25;
+
+/// One branch of the completed centreline: a chain of nodes from a root or junction to the next
+/// junction or end (as [`VesselTree::branches`]).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Branch {
+    /// Node indices, away from the root (the first one is shared with the parent branch).
+    pub nodes: Vec<usize>,
+    /// Whether most of its length is new (nodes of type [`KIND_NEW_VESSEL`]).
+    pub new: bool,
+    /// Length (mm).
+    pub length_mm: f64,
+    /// Length-weighted mean radius (mm).
+    pub mean_radius_mm: f64,
+    /// Whether its tree (connected component) holds a prior node.
+    pub connected_to_prior: bool,
+    /// Per view: the share of its length whose projection no other branch covers.
+    pub unique_support: Vec<f64>,
+    /// In [0, 1]; 1 for prior branches.
+    pub confidence: f64,
+}
+
+/// A point along a branch: position (mm), radius (mm), the length it stands for (mm), and
+/// whether it lies near a junction (where the neighbouring branches' footprints overlap it).
+struct Sample {
+    position_mm: DVec3,
+    radius_mm: f64,
+    length_mm: f64,
+    near_junction: bool,
+}
+
+fn samples(tree: &VesselTree, chain: &[usize], degree: &[usize]) -> Vec<Sample> {
+    let node = |i: usize| &tree.nodes[i];
+    let junctions: Vec<(DVec3, f64)> = [chain[0], chain[chain.len() - 1]]
+        .into_iter()
+        .filter(|&i| degree[i] >= 3)
+        .map(|i| (node(i).position_mm, node(i).radius_mm))
+        .collect();
+    let mut out = Vec::new();
+    for pair in chain.windows(2) {
+        let (a, b) = (node(pair[0]), node(pair[1]));
+        let len = a.position_mm.distance(b.position_mm);
+        if !(len > 0.0) {
+            continue;
+        }
+        let steps = (len / SAMPLE_MM).ceil().clamp(1.0, 1e6) as usize;
+        for k in 0..steps {
+            let t = (k as f64 + 0.5) / steps as f64;
+            let position_mm = a.position_mm.lerp(b.position_mm, t);
+            let radius_mm = a.radius_mm + (b.radius_mm - a.radius_mm) * t;
+            let near_junction = junctions.iter().any(|&(j, rj)| position_mm.distance(j) < 2.0 * (rj + radius_mm));
+            out.push(Sample { position_mm, radius_mm, length_mm: len / steps as f64, near_junction });
+        }
+    }
+    out
+}
+
+/// Which branch covers each pixel of one view: the first one drawn, and whether another one
+/// covers it too.
+struct Coverage {
+    width: i64,
+    height: i64,
+    first: Vec<u32>,
+    shared: Vec<bool>,
+}
+
+impl Coverage {
+    const NONE: u32 = u32::MAX;
+
+    fn new(view: &ConeBeamView) -> Self {
+        let n = view.width() as usize * view.height() as usize;
+        Self {
+            width: view.width() as i64,
+            height: view.height() as i64,
+            first: vec![Self::NONE; n],
+            shared: vec![false; n],
+        }
+    }
+
+    /// The pixel holding detector position `(u, v)`, if on the detector.
+    fn pixel(&self, u: f64, v: f64) -> Option<usize> {
+        let (i, j) = (u.floor(), v.floor());
+        (i >= 0.0 && j >= 0.0 && (i as i64) < self.width && (j as i64) < self.height)
+            .then(|| (j as i64 * self.width + i as i64) as usize)
+    }
+
+    /// Marks the disk of `radius_px` around `(u, v)` (at least the pixel holding it) as covered
+    /// by `branch`.
+    fn draw(&mut self, u: f64, v: f64, radius_px: f64, branch: u32) {
+        let r = radius_px.clamp(0.5, 1e4);
+        let (i0, i1) = (((u - r).floor() as i64).max(0), ((u + r).floor() as i64).min(self.width - 1));
+        let (j0, j1) = (((v - r).floor() as i64).max(0), ((v + r).floor() as i64).min(self.height - 1));
+        let centre = self.pixel(u, v);
+        for j in j0..=j1 {
+            for i in i0..=i1 {
+                let (du, dv) = (i as f64 + 0.5 - u, j as f64 + 0.5 - v);
+                let p = (j * self.width + i) as usize;
+                if du * du + dv * dv <= r * r || Some(p) == centre {
+                    self.mark(p, branch);
+                }
+            }
+        }
+    }
+
+    fn mark(&mut self, p: usize, branch: u32) {
+        if self.first[p] == Self::NONE {
+            self.first[p] = branch;
+        } else if self.first[p] != branch {
+            self.shared[p] = true;
+        }
+    }
+
+    fn owned_by(&self, p: usize, branch: u32) -> bool {
+        self.first[p] == branch && !self.shared[p]
+    }
+}
+
+/// `(u, v, radius in pixels)` of a sample in `view`, if in front of the source.
+fn projected(view: &ConeBeamView, s: &Sample) -> Option<(f64, f64, f64)> {
+    let uv = view.project(s.position_mm)?;
+    let depth = view.to_camera(s.position_mm).z;
+    let focal = view.intrinsics().focal_px;
+    Some((uv.x, uv.y, s.radius_mm * focal[0].min(focal[1]) / depth))
+}
+
+/// The confidence of `supports` (one per view): the second-lowest (the lowest with one view).
+pub fn confidence_of(supports: &[f64]) -> f64 {
+    let mut s = supports.to_vec();
+    s.sort_by(f64::total_cmp);
+    match s.len() {
+        0 => 0.0,
+        1 => s[0],
+        n => s[n - 2],
+    }
+}
+
+/// The branches of `tree` with their unique support in `views` and their confidence.
+pub fn branch_confidence(tree: &VesselTree, views: &[ConeBeamView]) -> Vec<Branch> {
+    let chains = tree.branches();
+    let children = tree.children();
+    let degree: Vec<usize> =
+        tree.nodes.iter().enumerate().map(|(i, n)| children[i].len() + n.parent.is_some() as usize).collect();
+    let component_has_prior = prior_components(tree);
+    let sampled: Vec<Vec<Sample>> = chains.iter().map(|c| samples(tree, c, &degree)).collect();
+    let coverages: Vec<Coverage> = views
+        .iter()
+        .map(|view| {
+            let mut coverage = Coverage::new(view);
+            for (b, ss) in sampled.iter().enumerate() {
+                for (u, v, r) in ss.iter().filter_map(|s| projected(view, s)) {
+                    coverage.draw(u, v, r, b as u32);
+                }
+            }
+            coverage
+        })
+        .collect();
+    chains
+        .into_iter()
+        .zip(&sampled)
+        .enumerate()
+        .map(|(b, (nodes, ss))| {
+            let length_mm: f64 = ss.iter().map(|s| s.length_mm).sum();
+            let new_length: f64 = nodes
+                .windows(2)
+                .filter(|p| tree.nodes[p[1]].kind == KIND_NEW_VESSEL)
+                .map(|p| tree.nodes[p[0]].position_mm.distance(tree.nodes[p[1]].position_mm))
+                .sum();
+            let new = 2.0 * new_length > length_mm;
+            let mean_radius_mm = if length_mm > 0.0 {
+                ss.iter().map(|s| s.radius_mm * s.length_mm).sum::<f64>() / length_mm
+            } else {
+                tree.nodes[nodes[0]].radius_mm
+            };
+            // Away from the junctions, unless that leaves nothing.
+            let away: Vec<&Sample> = ss.iter().filter(|s| !s.near_junction).collect();
+            let counted: Vec<&Sample> = if away.is_empty() { ss.iter().collect() } else { away };
+            let total: f64 = counted.iter().map(|s| s.length_mm).sum();
+            let unique_support: Vec<f64> = views
+                .iter()
+                .zip(&coverages)
+                .map(|(view, coverage)| {
+                    let own: f64 = counted
+                        .iter()
+                        .filter(|s| {
+                            projected(view, s)
+                                .and_then(|(u, v, _)| coverage.pixel(u, v))
+                                .is_some_and(|p| coverage.owned_by(p, b as u32))
+                        })
+                        .map(|s| s.length_mm)
+                        .sum();
+                    if total > 0.0 { own / total } else { 0.0 }
+                })
+                .collect();
+            let confidence = if new { confidence_of(&unique_support) } else { 1.0 };
+            let connected_to_prior = component_has_prior[component_root(tree, nodes[0])];
+            Branch { nodes, new, length_mm, mean_radius_mm, connected_to_prior, unique_support, confidence }
+        })
+        .collect()
+}
+
+fn component_root(tree: &VesselTree, mut i: usize) -> usize {
+    while let Some(p) = tree.nodes[i].parent {
+        i = p;
+    }
+    i
+}
+
+/// For every root: whether its tree holds a node of type [`KIND_PRIOR_VESSEL`].
+fn prior_components(tree: &VesselTree) -> Vec<bool> {
+    let mut has = vec![false; tree.nodes.len()];
+    for (i, n) in tree.nodes.iter().enumerate() {
+        if n.kind == KIND_PRIOR_VESSEL {
+            has[component_root(tree, i)] = true;
+        }
+    }
+    has
+}
+
+/// Every node's confidence: the confidence of the branch it ends or lies inside; 1 for nodes of
+/// the prior and for roots.
+pub fn node_confidence(tree: &VesselTree, branches: &[Branch]) -> Vec<f64> {
+    let mut out = vec![1.0; tree.nodes.len()];
+    for b in branches {
+        for &i in &b.nodes[1..] {
+            out[i] = if tree.nodes[i].kind == KIND_PRIOR_VESSEL { 1.0 } else { b.confidence };
+        }
+    }
+    out
+}
+
+/// The new length (mm) and the part of it on a true vessel in one confidence bin.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ConfidenceBin {
+    pub from: f64,
+    pub to: f64,
+    pub new_length_mm: f64,
+    /// `None` without a true tree.
+    pub true_length_mm: Option<f64>,
+    pub precision: Option<f64>,
+}
+
+/// The bin of `confidence`.
+pub fn bin_of(confidence: f64) -> usize {
+    ((confidence * CONFIDENCE_BINS as f64).floor() as usize).min(CONFIDENCE_BINS - 1)
+}
+
+/// The new length per confidence bin from `(confidence, length, true length)` of each new piece.
+pub fn confidence_bins(pieces: impl Iterator<Item = (f64, f64, Option<f64>)>) -> Vec<ConfidenceBin> {
+    let mut bins: Vec<ConfidenceBin> = (0..CONFIDENCE_BINS)
+        .map(|k| ConfidenceBin {
+            from: k as f64 / CONFIDENCE_BINS as f64,
+            to: (k + 1) as f64 / CONFIDENCE_BINS as f64,
+            new_length_mm: 0.0,
+            true_length_mm: None,
+            precision: None,
+        })
+        .collect();
+    for (confidence, length, truth) in pieces {
+        let bin = &mut bins[bin_of(confidence)];
+        bin.new_length_mm += length;
+        if let Some(t) = truth {
+            *bin.true_length_mm.get_or_insert(0.0) += t;
+        }
+    }
+    for b in &mut bins {
+        b.precision = b.true_length_mm.filter(|_| b.new_length_mm > 0.0).map(|t| t / b.new_length_mm);
+    }
+    bins
+}
+
+/// `branches.csv`: one row per branch (lengths and radii in mm).
+pub fn write_branches_csv(path: &Path, branches: &[Branch], views: usize) -> Result<()> {
+    let mut s = String::from("branch,new,length_mm,mean_radius_mm,connected_to_prior,confidence");
+    for v in 0..views {
+        let _ = write!(s, ",unique_support_view{v}");
+    }
+    s.push('\n');
+    for (k, b) in branches.iter().enumerate() {
+        let _ = write!(
+            s,
+            "{k},{},{:.3},{:.3},{},{:.3}",
+            b.new as u8, b.length_mm, b.mean_radius_mm, b.connected_to_prior as u8, b.confidence
+        );
+        for u in &b.unique_support {
+            let _ = write!(s, ",{u:.3}");
+        }
+        s.push('\n');
+    }
+    write_file(path, s.as_bytes())
+}
+
+/// The completed mesh with each vertex's confidence: `mesh-confidence.ply`.
+pub const MESH_CONFIDENCE: &str = "mesh-confidence.ply";
+
+/// Writes `mesh` as binary PLY with a float `confidence` per vertex: that of the nearest node of
+/// the centreline `tree` (`node_confidence`; 1 on the prior's vessels).
+pub fn write_mesh_confidence(path: &Path, mesh: &TriMesh, tree: &VesselTree, node_confidence: &[f64]) -> Result<()> {
+    let nodes: Vec<DVec3> = tree.nodes.iter().map(|n| n.position_mm).collect();
+    let nearest = nearest_points(&mesh.vertices, &nodes);
+    let header = format!(
+        "ply\nformat binary_little_endian 1.0\ncomment ctadsa completed mesh, world coordinates in mm; \
+         confidence of the nearest centreline branch (1 = prior vessel)\nelement vertex {}\n\
+         property float x\nproperty float y\nproperty float z\nproperty float confidence\n\
+         element face {}\nproperty list uchar int vertex_indices\nend_header\n",
+        mesh.vertices.len(),
+        mesh.faces.len()
+    );
+    let mut out = header.into_bytes();
+    for (v, &(_, i)) in mesh.vertices.iter().zip(&nearest) {
+        let c = node_confidence.get(i).copied().unwrap_or(1.0);
+        for x in [v.x, v.y, v.z, c] {
+            out.extend((x as f32).to_le_bytes());
+        }
+    }
+    for f in &mesh.faces {
+        out.push(3);
+        for &i in f {
+            out.extend((i as i32).to_le_bytes());
+        }
+    }
+    write_file(path, &out)
+}
+
+/// Reads what [`write_mesh_confidence`] wrote: the mesh and each vertex's confidence. Errors
+/// name the file.
+pub fn read_mesh_confidence(path: &Path) -> Result<(TriMesh, Vec<f32>)> {
+    let bytes = read_file(path)?;
+    let bad = |what: &str| CoreError::format(path, format!("not a mesh-confidence PLY: {what}"));
+    let end = bytes.windows(11).position(|w| w == b"end_header\n").ok_or_else(|| bad("no end_header"))? + 11;
+    let header = std::str::from_utf8(&bytes[..end]).map_err(|_| bad("header not UTF-8"))?;
+    let count = |element: &str| -> Result<usize> {
+        header
+            .lines()
+            .find_map(|l| l.strip_prefix(&format!("element {element} ")))
+            .and_then(|n| n.trim().parse().ok())
+            .ok_or_else(|| bad(&format!("no `element {element}` count")))
+    };
+    let (nv, nf) = (count("vertex")?, count("face")?);
+    let body = &bytes[end..];
+    let need = nv.checked_mul(16).zip(nf.checked_mul(13)).and_then(|(a, b)| a.checked_add(b));
+    if need != Some(body.len()) {
+        return Err(bad(&format!("{nv} vertices and {nf} faces need other than {} bytes", body.len())));
+    }
+    let f32_at = |o: usize| f32::from_le_bytes([body[o], body[o + 1], body[o + 2], body[o + 3]]);
+    let mut mesh = TriMesh::default();
+    let mut confidence = Vec::with_capacity(nv);
+    for k in 0..nv {
+        let o = 16 * k;
+        mesh.vertices.push(DVec3::new(f32_at(o) as f64, f32_at(o + 4) as f64, f32_at(o + 8) as f64));
+        confidence.push(f32_at(o + 12));
+    }
+    for k in 0..nf {
+        let o = 16 * nv + 13 * k;
+        if body[o] != 3 {
+            return Err(bad("a face is not a triangle"));
+        }
+        let idx = |j: usize| {
+            i32::from_le_bytes([body[o + 1 + 4 * j], body[o + 2 + 4 * j], body[o + 3 + 4 * j], body[o + 4 + 4 * j]])
+        };
+        let face = [idx(0), idx(1), idx(2)];
+        if face.iter().any(|&i| i < 0 || i as usize >= nv) {
+            return Err(bad("a face index is out of range"));
+        }
+        mesh.faces.push(face.map(|i| i as u32));
+    }
+    Ok((mesh, confidence))
+}
+
+/// The faces of `mesh` in one mesh per confidence bin, by the mean of their vertices'
+/// `vertex_confidence`.
+pub fn faces_by_confidence(mesh: &TriMesh, vertex_confidence: &[f32]) -> Vec<TriMesh> {
+    let mut bins = vec![TriMesh { vertices: mesh.vertices.clone(), faces: Vec::new() }; CONFIDENCE_BINS];
+    for f in &mesh.faces {
+        let c = f.iter().map(|&i| vertex_confidence.get(i as usize).copied().unwrap_or(1.0) as f64).sum::<f64>() / 3.0;
+        bins[bin_of(c)].faces.push(*f);
+    }
+    bins.iter().map(TriMesh::compacted).collect()
+}
+
+/// Colour of a confidence: red (0) through yellow to green (1).
+pub fn confidence_rgb(confidence: f64) -> [u8; 3] {
+    let c = confidence.clamp(0.0, 1.0);
+    if c < 0.5 {
+        [220, (60.0 + 340.0 * c) as u8, 40]
+    } else {
+        [(220.0 - 380.0 * (c - 0.5)) as u8, 230 - (60.0 * (c - 0.5)) as u8, 40]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use ctadsa_render::TigreGeometry;
+
+    use super::*;
+    use crate::data::tree::TreeNode;
+
+    fn view(primary_deg: f64) -> ConeBeamView {
+        ConeBeamView::from_tigre(&TigreGeometry {
+            dsd_mm: 700.0,
+            dso_mm: 500.0,
+            detector_px: [128, 128],
+            pixel_mm: [1.0, 1.0],
+            offset_mm: [0.0, 0.0],
+            primary_deg,
+            secondary_deg: 0.0,
+        })
+        .unwrap()
+    }
+
+    /// A straight chain of `kind` nodes from `a` to `b` (radius 0.5 mm), its root at `a`.
+    fn chain(tree: &mut VesselTree, a: DVec3, b: DVec3, kind: i32) {
+        let n = 20;
+        let first = tree.nodes.len();
+        for k in 0..=n {
+            let parent = if k == 0 { None } else { Some(first + k - 1) };
+            let position_mm = a.lerp(b, k as f64 / n as f64);
+            tree.nodes.push(TreeNode { id: 0, kind, position_mm, radius_mm: 0.5, parent });
+        }
+    }
+
+    #[test]
+    fn a_ghost_where_two_vessels_cross_has_no_support_and_the_vessels_keep_theirs() {
+        // Two views along x and along y (primary 0° and 90°); vessel X runs along z at
+        // (0, 10), vessel Y along z at (10, 0). A ghost at (10, 10) lies on X's ray in one view
+        // and on Y's in the other: it covers no pixel of its own in either.
+        let views = [view(0.0), view(90.0)];
+        let (lo, hi) = (-15.0, 15.0);
+        let mut tree = VesselTree::default();
+        chain(&mut tree, DVec3::new(0.0, 10.0, lo), DVec3::new(0.0, 10.0, hi), KIND_NEW_VESSEL);
+        chain(&mut tree, DVec3::new(10.0, 0.0, lo), DVec3::new(10.0, 0.0, hi), KIND_NEW_VESSEL);
+        chain(&mut tree, DVec3::new(10.0, 10.0, lo), DVec3::new(10.0, 10.0, hi), KIND_NEW_VESSEL);
+        let branches = branch_confidence(&tree, &views);
+        assert_eq!(branches.len(), 3);
+        let ghost = &branches[2];
+        assert!(ghost.confidence < 0.05, "ghost {ghost:?}");
+        // X and Y lose the ghost's share in the view where it hides behind them, not the other.
+        for b in &branches[..2] {
+            assert!(b.unique_support.iter().any(|&u| u > 0.95), "{b:?}");
+        }
+        // Without the ghost both are fully their own in both views.
+        tree.nodes.truncate(42);
+        for b in branch_confidence(&tree, &views) {
+            assert!(b.confidence > 0.95, "{b:?}");
+            assert!(b.new && !b.connected_to_prior);
+        }
+    }
+
+    #[test]
+    fn prior_branches_are_trusted_and_nodes_take_their_branch_confidence() {
+        let views = [view(0.0), view(90.0)];
+        let mut tree = VesselTree::default();
+        chain(&mut tree, DVec3::new(0.0, 0.0, -10.0), DVec3::new(0.0, 0.0, 10.0), KIND_PRIOR_VESSEL);
+        // A new branch grown from the middle of the prior trunk (node 10, a junction).
+        let first = tree.nodes.len();
+        chain(&mut tree, DVec3::new(0.0, 0.0, 0.0), DVec3::new(8.0, 8.0, 8.0), KIND_NEW_VESSEL);
+        tree.nodes[first].parent = Some(10);
+        let branches = branch_confidence(&tree, &views);
+        assert!(branches.iter().all(|b| b.connected_to_prior));
+        let prior = branches.iter().find(|b| !b.new).unwrap();
+        assert_eq!(prior.confidence, 1.0);
+        let nodes = node_confidence(&tree, &branches);
+        assert_eq!(nodes[0], 1.0);
+        let new = branches.iter().find(|b| b.new).unwrap();
+        assert_eq!(nodes[*new.nodes.last().unwrap()], new.confidence);
+    }
+
+    #[test]
+    fn the_mesh_confidence_ply_reads_back() {
+        let dir = std::env::temp_dir().join(format!("ctadsa-confidence-{}", std::process::id()));
+        let mesh = TriMesh {
+            vertices: vec![DVec3::ZERO, DVec3::new(1.0, 0.0, 0.0), DVec3::new(0.0, 5.0, 0.0)],
+            faces: vec![[0, 1, 2]],
+        };
+        let mut tree = VesselTree::default();
+        chain(&mut tree, DVec3::ZERO, DVec3::new(0.0, 5.0, 0.0), KIND_NEW_VESSEL);
+        let conf: Vec<f64> = (0..tree.nodes.len()).map(|i| i as f64 / 20.0).collect();
+        let path = dir.join(MESH_CONFIDENCE);
+        write_mesh_confidence(&path, &mesh, &tree, &conf).unwrap();
+        let (back, c) = read_mesh_confidence(&path).unwrap();
+        assert_eq!(back.faces, mesh.faces);
+        assert_eq!(c, vec![0.0, 0.0, 1.0]);
+        std::fs::write(&path, b"ply\nend_header\n").unwrap();
+        assert!(read_mesh_confidence(&path).unwrap_err().to_string().contains(MESH_CONFIDENCE));
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn the_second_lowest_support_decides_and_bins_sum_lengths() {
+        assert_eq!(confidence_of(&[0.2, 0.9]), 0.2);
+        assert_eq!(confidence_of(&[0.0, 0.9, 0.8]), 0.8);
+        assert_eq!(confidence_of(&[0.7]), 0.7);
+        let bins = confidence_bins([(0.05, 2.0, Some(1.0)), (1.0, 3.0, Some(3.0)), (0.99, 1.0, Some(0.0))].into_iter());
+        assert_eq!(bins[0].new_length_mm, 2.0);
+        assert_eq!(bins[0].precision, Some(0.5));
+        assert_eq!(bins[CONFIDENCE_BINS - 1].new_length_mm, 4.0);
+        assert_eq!(bins[CONFIDENCE_BINS - 1].precision, Some(0.75));
+        assert_eq!(bins[2].precision, None);
+    }
+}
