@@ -122,6 +122,34 @@ fn check_centreline(s: &RunSummary, out: &str) {
     let kinds: std::collections::BTreeSet<i32> = swc.tree.nodes.iter().map(|n| n.kind).collect();
     assert!(kinds.contains(&3) && kinds.contains(&4), "prior and new vessels marked: {kinds:?}");
     vtk_reads(&dir.join("centreline.vtp"), &swc.tree);
+    check_confidence(c, &dir);
+}
+
+/// Confidence of the new vessels: in [0, 1] for every branch of `branches.csv`, 1 on the
+/// prior's, per vertex in `mesh-confidence.ply` (the completed mesh), and the summary's bins
+/// sum to the new centreline length.
+fn check_confidence(c: &ctadsa_core::output::centreline::CentrelineSummary, dir: &std::path::Path) {
+    use ctadsa_core::output::confidence::{MESH_CONFIDENCE, read_mesh_confidence};
+    let csv = std::fs::read_to_string(dir.join("branches.csv")).expect("branches.csv");
+    let rows: Vec<Vec<String>> = csv.lines().skip(1).map(|l| l.split(',').map(str::to_string).collect()).collect();
+    assert_eq!(rows.len(), c.branches, "one row per branch");
+    for r in &rows {
+        let confidence: f64 = r[5].parse().unwrap();
+        assert!((0.0..=1.0).contains(&confidence), "{r:?}");
+        if r[1] == "0" {
+            assert_eq!(confidence, 1.0, "prior branches are trusted: {r:?}");
+        }
+    }
+    assert_eq!(rows.iter().filter(|r| r[1] == "1").count(), c.new_branches);
+    let binned: f64 = c.confidence_bins.iter().map(|b| b.new_length_mm).sum();
+    assert!((binned - c.new_length_mm).abs() < 1e-6 * c.new_length_mm.max(1.0), "{binned} vs {}", c.new_length_mm);
+    assert!(c.confidence_bins.iter().all(|b| b.true_length_mm.is_some_and(|t| t <= b.new_length_mm + 1e-9)));
+    let (mesh, confidence) = read_mesh_confidence(&dir.join(MESH_CONFIDENCE)).expect("mesh-confidence.ply");
+    assert_eq!(mesh.vertices.len(), confidence.len());
+    assert!(!mesh.faces.is_empty() && confidence.iter().all(|v| (0.0..=1.0).contains(v)));
+    let vtp = std::fs::read_to_string(dir.join("centreline.vtp")).unwrap();
+    assert!(vtp.contains("Name=\"Confidence\""));
+    assert!(dir.join("confidence.png").exists());
 }
 
 /// Opens a `.vtp` with VTK's own reader (Python `vtk`) and compares it with `tree`.

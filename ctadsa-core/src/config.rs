@@ -256,6 +256,10 @@ impl Default for LossConfig {
 /// 500,000 cap, and small enough to fail with a message rather than an allocation abort.
 pub const MAX_GAUSSIANS: usize = 20_000_000;
 
+/// Largest number of metric samples per surface (`output.metric_samples`, `ctadsa eval
+/// --samples`): a larger request is an error, not an allocation.
+pub const MAX_SAMPLES: usize = 10_000_000;
+
 /// The widest field MLP a config may ask for.
 pub const MAX_HIDDEN: usize = 4096;
 
@@ -375,6 +379,11 @@ pub struct OutputConfig {
     pub centreline_const_mm: f64,
     /// Terminal centreline branches shorter than this are removed (mm).
     pub centreline_min_branch_mm: f64,
+    /// New vessels of lower confidence (`output::confidence`, in [0, 1]) are left out of the
+    /// centreline and the mesh (`mesh-confidence.ply` and `branches.csv` keep them); 0 keeps
+    /// everything. docs/RESULTS.md, "Which new vessels to trust", gives the precision / recall
+    /// trade-off.
+    pub min_confidence: f64,
 }
 
 impl OutputConfig {
@@ -412,6 +421,7 @@ impl Default for OutputConfig {
             centreline_scale: 1.5,
             centreline_const_mm: 1.0,
             centreline_min_branch_mm: 1.0,
+            min_confidence: 0.0,
         }
     }
 }
@@ -681,6 +691,7 @@ impl Config {
         )?;
         check(self.densify.grad_threshold > 0.0, "densify.grad_threshold", "must be > 0")?;
         check(self.output.min_island_mm2 >= 0.0, "output.min_island_mm2", "must be ≥ 0")?;
+        check((0.0..=1.0).contains(&self.output.min_confidence), "output.min_confidence", "must be in [0, 1]")?;
         check(
             (0.0..=1.0).contains(&self.output.connected_level_fraction),
             "output.connected_level_fraction",
@@ -711,7 +722,7 @@ impl Config {
             check((0.0..=100.0).contains(&v), k, "must be in [0, 100] mm")?;
         }
         check(
-            (1..=crate::eval::score::MAX_SAMPLES).contains(&self.output.metric_samples),
+            (1..=MAX_SAMPLES).contains(&self.output.metric_samples),
             "output.metric_samples",
             "must be in 1..=10,000,000",
         )?;

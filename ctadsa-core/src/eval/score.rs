@@ -19,8 +19,7 @@ use crate::eval::icp::icp;
 use crate::eval::metrics::{RegionScores, region_scores};
 use crate::eval::surface_metrics::{Coverage, Truth, evaluate_surface};
 
-/// Largest number of samples per surface (a larger request is an error, not an allocation).
-pub const MAX_SAMPLES: usize = 10_000_000;
+pub use crate::config::MAX_SAMPLES;
 
 /// How the surfaces are scored.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]

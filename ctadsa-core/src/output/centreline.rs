@@ -23,7 +23,7 @@ use crate::error::Result;
 use crate::eval::centreline_metrics::{CentrelineMatch, CentrelineScores, score_centreline};
 use crate::output::confidence::{
     CONFIDENCE_BINS, ConfidenceBin, bin_of, branch_confidence, confidence_bins, confidence_rgb, node_confidence,
-    write_branches_csv,
+    without_doubtful_branches, write_branches_csv,
 };
 
 /// What a run's centreline is and how it scores.
@@ -113,25 +113,34 @@ pub fn completed_centreline(
 /// Writes `centreline.swc`, `centreline.vtp` (with each node's `Confidence`), `branches.csv`
 /// and `confidence.png` (new branches coloured by confidence, [`branch_confidence`] in `views`),
 /// and with a true tree scores the centreline, by confidence bin too, and draws
-/// `centreline.png` (true missing vessels found / missed, false new branches). Returns the
-/// summary and every node's confidence.
+/// `centreline.png` (true missing vessels found / missed, false new branches). New branches of
+/// confidence below `min_confidence` are left out of the written and scored centreline (not of
+/// `branches.csv`). Returns the summary and every node's confidence (of `tree`, all branches).
 pub fn write_centreline(
     dir: &Path,
-    tree: &VesselTree,
+    all: &VesselTree,
     views: &[ConeBeamView],
     truth: Option<(&[Segment], &[Segment])>,
+    min_confidence: f64,
 ) -> Result<(CentrelineSummary, Vec<f64>)> {
+    let branches = branch_confidence(all, views);
+    let all_confidence = node_confidence(all, &branches);
+    write_branches_csv(&dir.join("branches.csv"), &branches, views.len())?;
+    let kept;
+    let (tree, confidence) = if min_confidence > 0.0 {
+        kept = without_doubtful_branches(all, &branches, &all_confidence, min_confidence);
+        (&kept.0, &kept.1)
+    } else {
+        (all, &all_confidence)
+    };
     let header = format!(
         "ctadsa completed centreline: positions and radii in mm (world coordinates of the case)\n\
          type {KIND_PRIOR_VESSEL} = vessel of the prior (CTA), type {KIND_NEW_VESSEL} = new vessel found from the views"
     );
     write_swc(&dir.join("centreline.swc"), tree, &header)?;
-    let branches = branch_confidence(tree, views);
-    let confidence = node_confidence(tree, &branches);
-    write_vtp(&dir.join("centreline.vtp"), tree, &[("Confidence", &confidence)])?;
-    write_branches_csv(&dir.join("branches.csv"), &branches, views.len())?;
+    write_vtp(&dir.join("centreline.vtp"), tree, &[("Confidence", confidence)])?;
     let segments = tree.segments();
-    draw_confidence(&dir.join("confidence.png"), &segments, tree, &confidence)?;
+    draw_confidence(&dir.join("confidence.png"), &segments, tree, confidence)?;
     let length_mm = segments.iter().map(Segment::length_mm).sum();
     let new_length_mm =
         segments.iter().filter(|s| tree.nodes[s.child].kind == KIND_NEW_VESSEL).map(Segment::length_mm).sum();
@@ -151,16 +160,17 @@ pub fn write_centreline(
             (None, confidence_bins(new.map(|s| (confidence[s.child], s.length_mm(), None))))
         }
     };
+    let kept_new = branches.iter().filter(|b| b.new && b.confidence >= min_confidence).count();
     let summary = CentrelineSummary {
         nodes: tree.nodes.len(),
         length_mm,
         new_length_mm,
         scores,
-        branches: branches.len(),
-        new_branches: branches.iter().filter(|b| b.new).count(),
+        branches: branches.len() - branches.iter().filter(|b| b.new).count() + kept_new,
+        new_branches: kept_new,
         confidence_bins,
     };
-    Ok((summary, confidence))
+    Ok((summary, all_confidence))
 }
 
 /// `confidence.png`: the prior's centreline in grey, the new branches coloured by confidence

@@ -7,10 +7,12 @@
 //! each view: it has no pixel of its own. So every branch of the completed centreline (prior
 //! branches included) is drawn into every view as its tube's footprint, and a branch's *unique
 //! support* in a view is the share of its length (away from its junctions) whose projected axis
-//! falls on a pixel no other branch covers. A branch is placed by two views: its confidence is
+//! falls on a pixel no other branch covers. A branch is placed by two views: its view support is
 //! the second-lowest unique support over the views (with 2 views the lower one, with 3 the
-//! middle one), so that a vessel hidden in one of three views keeps its confidence. Prior branches
-//! have confidence 1.
+//! middle one), so that a vessel hidden in one of three views keeps its confidence. Short pieces
+//! are the least reliable (a fragment a few voxels long fits the views by chance more easily
+//! than a branch): the confidence is the view support × (1 − exp(−length / 4 mm)). Prior
+//! branches have confidence 1.
 
 use std::fmt::Write as _;
 use std::path::Path;
@@ -31,13 +33,20 @@ pub const CONFIDENCE_BINS: usize = 5;
 /// Step of the samples along a branch (mm).
 const SAMPLE_MM: f64 = 0.25;
 
+/// Length scale of the confidence's length factor `1 − exp(−length / LENGTH_SCALE_MM)` (mm):
+/// of 0 (none), 2, 4 and 8 mm, 4 gave the top confidence bin ≥ 0.89 precision with both view
+/// counts while keeping precision rising bin by bin (docs/RESULTS.md, "Which new vessels to
+/// trust").
+pub const LENGTH_SCALE_MM: f64 = 4.0;
+
 /// One branch of the completed centreline: a chain of nodes from a root or junction to the next
-/// junction or end (as [`VesselTree::branches`]).
+/// junction or end ([`VesselTree::branches`]), cut where it passes from a prior vessel to a new
+/// one, so that a new vessel grown from a prior vessel's end is a branch of its own.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Branch {
     /// Node indices, away from the root (the first one is shared with the parent branch).
     pub nodes: Vec<usize>,
-    /// Whether most of its length is new (nodes of type [`KIND_NEW_VESSEL`]).
+    /// Whether it is new (its nodes after the first of type [`KIND_NEW_VESSEL`]).
     pub new: bool,
     /// Length (mm).
     pub length_mm: f64,
@@ -154,8 +163,8 @@ fn projected(view: &ConeBeamView, s: &Sample) -> Option<(f64, f64, f64)> {
     Some((uv.x, uv.y, s.radius_mm * focal[0].min(focal[1]) / depth))
 }
 
-/// The confidence of `supports` (one per view): the second-lowest (the lowest with one view).
-pub fn confidence_of(supports: &[f64]) -> f64 {
+/// The view support of `supports` (one per view): the second-lowest (the lowest with one view).
+pub fn view_support(supports: &[f64]) -> f64 {
     let mut s = supports.to_vec();
     s.sort_by(f64::total_cmp);
     match s.len() {
@@ -167,7 +176,7 @@ pub fn confidence_of(supports: &[f64]) -> f64 {
 
 /// The branches of `tree` with their unique support in `views` and their confidence.
 pub fn branch_confidence(tree: &VesselTree, views: &[ConeBeamView]) -> Vec<Branch> {
-    let chains = tree.branches();
+    let chains = kind_branches(tree);
     let children = tree.children();
     let degree: Vec<usize> =
         tree.nodes.iter().enumerate().map(|(i, n)| children[i].len() + n.parent.is_some() as usize).collect();
@@ -191,12 +200,7 @@ pub fn branch_confidence(tree: &VesselTree, views: &[ConeBeamView]) -> Vec<Branc
         .enumerate()
         .map(|(b, (nodes, ss))| {
             let length_mm: f64 = ss.iter().map(|s| s.length_mm).sum();
-            let new_length: f64 = nodes
-                .windows(2)
-                .filter(|p| tree.nodes[p[1]].kind == KIND_NEW_VESSEL)
-                .map(|p| tree.nodes[p[0]].position_mm.distance(tree.nodes[p[1]].position_mm))
-                .sum();
-            let new = 2.0 * new_length > length_mm;
+            let new = tree.nodes[nodes[1]].kind == KIND_NEW_VESSEL;
             let mean_radius_mm = if length_mm > 0.0 {
                 ss.iter().map(|s| s.radius_mm * s.length_mm).sum::<f64>() / length_mm
             } else {
@@ -222,11 +226,33 @@ pub fn branch_confidence(tree: &VesselTree, views: &[ConeBeamView]) -> Vec<Branc
                     if total > 0.0 { own / total } else { 0.0 }
                 })
                 .collect();
-            let confidence = if new { confidence_of(&unique_support) } else { 1.0 };
+            let confidence = if new {
+                view_support(&unique_support) * (1.0 - (-length_mm / LENGTH_SCALE_MM).exp())
+            } else {
+                1.0
+            };
             let connected_to_prior = component_has_prior[component_root(tree, nodes[0])];
             Branch { nodes, new, length_mm, mean_radius_mm, connected_to_prior, unique_support, confidence }
         })
         .collect()
+}
+
+/// [`VesselTree::branches`], each cut at the nodes after which the node type changes: every
+/// chain's nodes after its first are all new or all not.
+pub fn kind_branches(tree: &VesselTree) -> Vec<Vec<usize>> {
+    let is_new = |i: usize| tree.nodes[i].kind == KIND_NEW_VESSEL;
+    let mut out = Vec::new();
+    for chain in tree.branches() {
+        let mut start = 0;
+        for k in 2..chain.len() {
+            if is_new(chain[k]) != is_new(chain[k - 1]) {
+                out.push(chain[start..k].to_vec());
+                start = k - 1;
+            }
+        }
+        out.push(chain[start..].to_vec());
+    }
+    out
 }
 
 fn component_root(tree: &VesselTree, mut i: usize) -> usize {
@@ -247,16 +273,67 @@ fn prior_components(tree: &VesselTree) -> Vec<bool> {
     has
 }
 
-/// Every node's confidence: the confidence of the branch it ends or lies inside; 1 for nodes of
-/// the prior and for roots.
-pub fn node_confidence(tree: &VesselTree, branches: &[Branch]) -> Vec<f64> {
-    let mut out = vec![1.0; tree.nodes.len()];
-    for b in branches {
+/// `tree` without the new branches whose confidence is below `min_confidence` (their nodes
+/// other than the one they start from), and the kept nodes' `confidence`. A branch hanging from
+/// a dropped one becomes a tree of its own.
+pub fn without_doubtful_branches(
+    tree: &VesselTree,
+    branches: &[Branch],
+    confidence: &[f64],
+    min_confidence: f64,
+) -> (VesselTree, Vec<f64>) {
+    let mut keep = vec![true; tree.nodes.len()];
+    for b in branches.iter().filter(|b| b.new && b.confidence < min_confidence) {
         for &i in &b.nodes[1..] {
-            out[i] = if tree.nodes[i].kind == KIND_PRIOR_VESSEL { 1.0 } else { b.confidence };
+            keep[i] = tree.nodes[i].kind == KIND_PRIOR_VESSEL;
         }
     }
-    out
+    let mut index = vec![usize::MAX; tree.nodes.len()];
+    let mut out = VesselTree::default();
+    let mut kept_confidence = Vec::new();
+    for (i, n) in tree.nodes.iter().enumerate().filter(|(i, _)| keep[*i]) {
+        index[i] = out.nodes.len();
+        out.nodes.push(n.clone());
+        kept_confidence.push(confidence[i]);
+    }
+    for n in &mut out.nodes {
+        // Parents come before their children in a centreline tree, but not necessarily in any
+        // tree: map after all kept nodes have their index.
+        n.parent = n.parent.and_then(|p| (index[p] != usize::MAX).then_some(index[p]));
+    }
+    (out, kept_confidence)
+}
+
+/// `mesh` without the faces whose vertices' mean confidence is below `min_confidence`.
+pub fn mesh_without_doubtful(mesh: &TriMesh, vertex_confidence: &[f64], min_confidence: f64) -> TriMesh {
+    let faces = mesh
+        .faces
+        .iter()
+        .filter(|f| f.iter().map(|&i| vertex_confidence[i as usize]).sum::<f64>() / 3.0 >= min_confidence)
+        .copied()
+        .collect();
+    TriMesh { vertices: mesh.vertices.clone(), faces }.compacted()
+}
+
+/// Every vertex's confidence: that of the nearest node of `tree`.
+pub fn vertex_confidence(mesh: &TriMesh, tree: &VesselTree, node_confidence: &[f64]) -> Vec<f64> {
+    let nodes: Vec<DVec3> = tree.nodes.iter().map(|n| n.position_mm).collect();
+    nearest_points(&mesh.vertices, &nodes).iter().map(|&(_, i)| node_confidence.get(i).copied().unwrap_or(1.0)).collect()
+}
+
+/// Every node's confidence: the confidence of the branch it ends or lies inside (1 for the
+/// prior's); roots take that of their first branch.
+pub fn node_confidence(tree: &VesselTree, branches: &[Branch]) -> Vec<f64> {
+    let mut out = vec![f64::NAN; tree.nodes.len()];
+    for b in branches {
+        for &i in &b.nodes[1..] {
+            out[i] = b.confidence;
+        }
+        if out[b.nodes[0]].is_nan() && tree.nodes[b.nodes[0]].parent.is_none() {
+            out[b.nodes[0]] = b.confidence;
+        }
+    }
+    out.iter().map(|c| if c.is_nan() { 1.0 } else { *c }).collect()
 }
 
 /// The new length (mm) and the part of it on a true vessel in one confidence bin.
@@ -323,11 +400,8 @@ pub fn write_branches_csv(path: &Path, branches: &[Branch], views: usize) -> Res
 /// The completed mesh with each vertex's confidence: `mesh-confidence.ply`.
 pub const MESH_CONFIDENCE: &str = "mesh-confidence.ply";
 
-/// Writes `mesh` as binary PLY with a float `confidence` per vertex: that of the nearest node of
-/// the centreline `tree` (`node_confidence`; 1 on the prior's vessels).
-pub fn write_mesh_confidence(path: &Path, mesh: &TriMesh, tree: &VesselTree, node_confidence: &[f64]) -> Result<()> {
-    let nodes: Vec<DVec3> = tree.nodes.iter().map(|n| n.position_mm).collect();
-    let nearest = nearest_points(&mesh.vertices, &nodes);
+/// Writes `mesh` as binary PLY with a float `confidence` per vertex ([`vertex_confidence`]).
+pub fn write_mesh_confidence(path: &Path, mesh: &TriMesh, vertex_confidence: &[f64]) -> Result<()> {
     let header = format!(
         "ply\nformat binary_little_endian 1.0\ncomment ctadsa completed mesh, world coordinates in mm; \
          confidence of the nearest centreline branch (1 = prior vessel)\nelement vertex {}\n\
@@ -337,8 +411,7 @@ pub fn write_mesh_confidence(path: &Path, mesh: &TriMesh, tree: &VesselTree, nod
         mesh.faces.len()
     );
     let mut out = header.into_bytes();
-    for (v, &(_, i)) in mesh.vertices.iter().zip(&nearest) {
-        let c = node_confidence.get(i).copied().unwrap_or(1.0);
+    for (v, &c) in mesh.vertices.iter().zip(vertex_confidence) {
         for x in [v.x, v.y, v.z, c] {
             out.extend((x as f32).to_le_bytes());
         }
@@ -496,6 +569,45 @@ mod tests {
     }
 
     #[test]
+    fn a_new_vessel_grown_from_a_prior_end_is_a_branch_of_its_own() {
+        let mut tree = VesselTree::default();
+        chain(&mut tree, DVec3::new(0.0, 0.0, -10.0), DVec3::new(0.0, 0.0, 0.0), KIND_PRIOR_VESSEL);
+        let first = tree.nodes.len();
+        chain(&mut tree, DVec3::new(0.0, 0.0, 0.25), DVec3::new(0.0, 0.0, 3.0), KIND_NEW_VESSEL);
+        tree.nodes[first].parent = Some(first - 1);
+        assert_eq!(tree.branches().len(), 1);
+        let cut = kind_branches(&tree);
+        assert_eq!(cut.len(), 2);
+        assert_eq!(cut[1][0], first - 1, "the new branch starts from the prior's end");
+        let branches = branch_confidence(&tree, &[view(0.0), view(90.0)]);
+        assert!(!branches[0].new && branches[1].new);
+        assert!(branches[1].confidence < 0.6, "a 3 mm piece: {}", branches[1].confidence);
+        let nodes = node_confidence(&tree, &branches);
+        assert_eq!(nodes[first - 1], 1.0);
+        assert_eq!(nodes[tree.nodes.len() - 1], branches[1].confidence);
+    }
+
+    #[test]
+    fn doubtful_branches_are_dropped_and_what_hangs_from_them_kept() {
+        let views = [view(0.0), view(90.0)];
+        let mut tree = VesselTree::default();
+        chain(&mut tree, DVec3::new(0.0, 0.0, -10.0), DVec3::new(0.0, 0.0, 10.0), KIND_PRIOR_VESSEL);
+        let first = tree.nodes.len();
+        chain(&mut tree, DVec3::new(0.0, 0.0, 0.0), DVec3::new(8.0, 8.0, 8.0), KIND_NEW_VESSEL);
+        tree.nodes[first].parent = Some(10);
+        let branches = branch_confidence(&tree, &views);
+        let confidence = node_confidence(&tree, &branches);
+        let new = branches.iter().find(|b| b.new).unwrap().confidence;
+        let (kept, c) = without_doubtful_branches(&tree, &branches, &confidence, new - 1e-9);
+        assert_eq!(kept.nodes.len(), tree.nodes.len());
+        let (kept, c2) = without_doubtful_branches(&tree, &branches, &confidence, new + 1e-9);
+        assert_eq!(kept.nodes.len(), 21, "only the prior trunk is left");
+        assert!(kept.nodes.iter().all(|n| n.kind == KIND_PRIOR_VESSEL) && c2.iter().all(|&x| x == 1.0));
+        assert_eq!(c.len(), tree.nodes.len());
+        assert!(kept.nodes[1..].iter().all(|n| n.parent.is_some()));
+    }
+
+    #[test]
     fn the_mesh_confidence_ply_reads_back() {
         let dir = std::env::temp_dir().join(format!("ctadsa-confidence-{}", std::process::id()));
         let mesh = TriMesh {
@@ -506,7 +618,7 @@ mod tests {
         chain(&mut tree, DVec3::ZERO, DVec3::new(0.0, 5.0, 0.0), KIND_NEW_VESSEL);
         let conf: Vec<f64> = (0..tree.nodes.len()).map(|i| i as f64 / 20.0).collect();
         let path = dir.join(MESH_CONFIDENCE);
-        write_mesh_confidence(&path, &mesh, &tree, &conf).unwrap();
+        write_mesh_confidence(&path, &mesh, &vertex_confidence(&mesh, &tree, &conf)).unwrap();
         let (back, c) = read_mesh_confidence(&path).unwrap();
         assert_eq!(back.faces, mesh.faces);
         assert_eq!(c, vec![0.0, 0.0, 1.0]);
@@ -517,9 +629,9 @@ mod tests {
 
     #[test]
     fn the_second_lowest_support_decides_and_bins_sum_lengths() {
-        assert_eq!(confidence_of(&[0.2, 0.9]), 0.2);
-        assert_eq!(confidence_of(&[0.0, 0.9, 0.8]), 0.8);
-        assert_eq!(confidence_of(&[0.7]), 0.7);
+        assert_eq!(view_support(&[0.2, 0.9]), 0.2);
+        assert_eq!(view_support(&[0.0, 0.9, 0.8]), 0.8);
+        assert_eq!(view_support(&[0.7]), 0.7);
         let bins = confidence_bins([(0.05, 2.0, Some(1.0)), (1.0, 3.0, Some(3.0)), (0.99, 1.0, Some(0.0))].into_iter());
         assert_eq!(bins[0].new_length_mm, 2.0);
         assert_eq!(bins[0].precision, Some(0.5));

@@ -30,7 +30,7 @@ use crate::method::model::host_vec;
 use crate::method::train::{StepLog, Trainer};
 use crate::method::training_time::TrainingTime;
 use crate::output::centreline::{CentrelineSummary, SolidPart, completed_centreline, write_centreline};
-use crate::output::confidence::{MESH_CONFIDENCE, write_mesh_confidence};
+use crate::output::confidence::{MESH_CONFIDENCE, mesh_without_doubtful, vertex_confidence, write_mesh_confidence};
 use crate::output::extraction::{
     LevelScore, best_level, completed_solid, density_scale, faint_level_field, join_prior, keep_connected_to_prior,
     prior_solid, score_levels,
@@ -235,9 +235,8 @@ pub fn write_outputs(dir: &Path, case: &Case, trainer: &Trainer, member: Option<
     write_nifti(&dir.join("density.nii.gz"), &volume, "ctadsa density (per mm)")?;
     let prior = case.prior_mesh()?;
     let surface = extract_completed_surface(dir, trainer, &volume, prior.as_ref())?;
-    let mesh = &surface.mesh;
     let truth = CaseTruth::load(case)?;
-    let (centreline, topology) = write_centreline_of(
+    let (centreline, topology, vertex_confidence) = write_centreline_of(
         dir,
         &volume,
         &surface,
@@ -246,6 +245,14 @@ pub fn write_outputs(dir: &Path, case: &Case, trainer: &Trainer, member: Option<
         trainer.views.views(),
         truth.as_ref(),
     )?;
+    let trusted;
+    let mesh = if cfg.output.min_confidence > 0.0 {
+        trusted = mesh_without_doubtful(&surface.mesh, &vertex_confidence, cfg.output.min_confidence);
+        write_mesh(&dir.join(format!("mesh.{}", cfg.output.mesh_format)), &trusted)?;
+        &trusted
+    } else {
+        &surface.mesh
+    };
     let renders = trainer.render_all()?;
     write_renders(dir, case, trainer, &renders)?;
     write_loss(dir, &trainer.history)?;
@@ -417,7 +424,7 @@ fn write_centreline_of(
     out: &OutputConfig,
     views: &[ConeBeamView],
     truth: Option<&CaseTruth>,
-) -> Result<(CentrelineSummary, Option<TopologyScores>)> {
+) -> Result<(CentrelineSummary, Option<TopologyScores>, Vec<f64>)> {
     let above_level = completed_solid(surface.field.as_ref().unwrap_or(volume), surface.field_level, None);
     let voxelised;
     let prior_voxels = match (&surface.kept_prior, prior) {
@@ -452,9 +459,10 @@ fn write_centreline_of(
         topology_scores(&completed, &true_solid, &tree.segments(), skeleton)
     });
     let truth = truth.and_then(|t| t.missing_centreline.as_deref().zip(t.centreline.as_deref()));
-    let (summary, confidence) = write_centreline(dir, &tree, views, truth)?;
-    write_mesh_confidence(&dir.join(MESH_CONFIDENCE), &surface.mesh, &tree, &confidence)?;
-    Ok((summary, topology))
+    let (summary, confidence) = write_centreline(dir, &tree, views, truth, out.min_confidence)?;
+    let at_vertices = vertex_confidence(&surface.mesh, &tree, &confidence);
+    write_mesh_confidence(&dir.join(MESH_CONFIDENCE), &surface.mesh, &at_vertices)?;
+    Ok((summary, topology, at_vertices))
 }
 
 /// `loss.csv` and `loss.png` (log scale; a term is drawn where it is positive).
