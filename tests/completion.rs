@@ -279,9 +279,9 @@ fn resumed_run_continues_the_same_trajectory() {
 fn checkpoint_with_the_padded_table_layout_resumes_exactly() {
     use burn::module::{Module, Param};
     use burn::tensor::{Tensor, TensorData};
-    use ctadsa_core::method::model::host_vec;
-    use ctadsa_core::method::optim::FusedAdam;
-    use ctadsa_core::method::optim::state_edit::edit_state;
+    use ctadsa_ops::optim::FusedAdam;
+    use ctadsa_ops::optim::state_edit::edit_state;
+    use ctadsa_ops::readback::host_vec;
     let cfg = tiny_config(12);
     let c = cfg.field.encoding;
     let padded_rows = c.padded_rows();

@@ -9,8 +9,8 @@ use ctadsa_core::bench::LaunchWatch;
 use ctadsa_core::config::Config;
 use ctadsa_core::data::case::Case;
 use ctadsa_core::data::synth::{SynthConfig, synthesize};
-use ctadsa_core::method::readback::Transfers;
 use ctadsa_core::method::train::Trainer;
+use ctadsa_ops::readback::Transfers;
 
 const QUICK_TOML: &str = include_str!(concat!(env!("CARGO_MANIFEST_DIR"), "/configs/quick.toml"));
 

@@ -8,7 +8,7 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{CoreError, Result, read_file};
-use crate::method::model::field::FieldConfig;
+pub use ctadsa_ops::hash_grid::HashGridConfig;
 
 /// How the N2 seeds are chosen.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -187,7 +187,7 @@ pub struct OptimConfig {
     /// image gradients are small (the paper configuration's field on BG0002 by iteration 5,000;
     /// `crate::method::field_health`, docs/RESULTS.md).
     pub field_weight_decay: f64,
-    /// Which Adam: `fused` (one pass per parameter, [`crate::method::optim::FusedAdam`]) or `burn`
+    /// Which Adam: `fused` (one pass per parameter, [`ctadsa_ops::optim::FusedAdam`]) or `burn`
     /// (burn's `Adam`, the reference); the same update rule and checkpoint format.
     pub adam: AdamImpl,
 }
@@ -318,6 +318,34 @@ impl Default for DensifyConfig {
             reseed_from_model: false,
             reseed_occluded: false,
         }
+    }
+}
+
+/// The MLP's output non-linearity (both non-negative).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum OutputActivation {
+    /// `max(0, x)`, as the reference implementation (can start or get stuck at zero).
+    Relu,
+    /// `ln(1 + eˣ)`: strictly positive, never stuck.
+    Softplus,
+}
+
+/// `[field]`: the opacity field (hash encoding + MLP).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct FieldConfig {
+    pub encoding: HashGridConfig,
+    /// Width of the hidden layers.
+    pub hidden: usize,
+    /// Number of hidden layers (1–4).
+    pub hidden_layers: usize,
+    pub output: OutputActivation,
+}
+
+impl Default for FieldConfig {
+    fn default() -> Self {
+        Self { encoding: HashGridConfig::default(), hidden: 64, hidden_layers: 2, output: OutputActivation::Softplus }
     }
 }
 

@@ -22,6 +22,9 @@ pub enum CoreError {
     /// The renderer rejected its input.
     #[error(transparent)]
     Render(#[from] ctadsa_render::RenderError),
+    /// An op (`ctadsa_ops`) rejected its input or state.
+    #[error(transparent)]
+    Ops(#[from] ctadsa_ops::error::OpsError),
 }
 
 impl CoreError {

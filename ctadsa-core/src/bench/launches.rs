@@ -10,28 +10,8 @@ use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
+use super::KernelLaunches;
 use burn_cubecl::cubecl::logging::{LaunchObservation, LaunchObserver, ProfileDuration, TimingRequest};
-
-/// Launches (and device time) per kernel over the observed work.
-#[derive(Debug, Clone, Default, PartialEq)]
-pub struct KernelLaunches {
-    /// Kernel name (short, without module path and generics) → launches.
-    pub counts: BTreeMap<String, u64>,
-    /// Kernel name → device time (only when timed, and only launches the device timed).
-    pub device_time: BTreeMap<String, Duration>,
-}
-
-impl KernelLaunches {
-    /// All launches.
-    pub fn total(&self) -> u64 {
-        self.counts.values().sum()
-    }
-
-    /// All timed device time.
-    pub fn total_device_time(&self) -> Duration {
-        self.device_time.values().sum()
-    }
-}
 
 #[derive(Default)]
 struct Recorded {

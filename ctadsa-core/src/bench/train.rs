@@ -10,8 +10,8 @@ use crate::config::Config;
 use crate::data::case::Case;
 use crate::error::Result;
 use crate::method::densify::DensifyPlan;
-use crate::method::readback::Transfers;
 use crate::method::train::{StageTimes, Trainer};
+use ctadsa_ops::readback::Transfers;
 
 /// What [`bench_train`] measures.
 #[derive(Debug, Clone, Copy)]

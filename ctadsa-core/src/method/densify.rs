@@ -18,7 +18,7 @@ use crate::config::DensifyConfig;
 use crate::data::volume::BoxMm;
 use crate::error::Result;
 use crate::method::model::{GaussianInit, GaussianModel, ScaleBounds, tensor2};
-use crate::method::optim::state_edit::edit_state;
+use ctadsa_ops::optim::state_edit::edit_state;
 
 /// Per-Gaussian accumulators of the screen-space gradient statistic.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -40,7 +40,7 @@ impl DensifyStats {
     pub fn to_tensor(&self, device: &Device) -> burn::tensor::Tensor<2> {
         let n = self.sum.len().min(self.count.len());
         let flat: Vec<f32> = (0..n).flat_map(|i| [self.sum[i], self.count[i]]).collect();
-        crate::method::readback::count_upload(flat.len());
+        ctadsa_ops::readback::count_upload(flat.len());
         burn::tensor::Tensor::from_data(burn::tensor::TensorData::new(flat, [n, 2]), device)
     }
 
@@ -218,12 +218,12 @@ mod tests {
     #![allow(deprecated)] // burn-ndarray is the CPU backend the tests use.
     use super::*;
     use crate::method::model::field::FieldConfig;
-    use crate::method::model::hash_grid::HashGridConfig;
-    use crate::method::model::host_vec;
     use burn::lr_scheduler::constant::ConstantLr;
     use burn::lr_scheduler::module_lr_scheduler::ModuleLrScheduler;
     use burn::optim::{AdamConfig, GradientsParams};
     use burn::tensor::{Tensor, TensorData};
+    use ctadsa_ops::hash_grid::HashGridConfig;
+    use ctadsa_ops::readback::host_vec;
 
     /// Adam moments of the parameter `id` as `(rows, moment 1, moment 2)` (host copies).
     fn moments(optim: ModuleOptimizer, id: burn::module::ParamId) -> (ModuleOptimizer, Vec<Vec<f32>>) {

@@ -13,7 +13,7 @@ use burn::tensor::{Device, Tensor, TensorData};
 use ctadsa_render::Gaussians;
 
 use crate::data::projector::correction::PoseCorrection;
-use crate::method::model::host_vec;
+use ctadsa_ops::readback::host_vec;
 
 /// The corrections of all views as burn parameters.
 #[derive(Module, Debug)]

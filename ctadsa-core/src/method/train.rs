@@ -25,17 +25,18 @@ use crate::data::mesh::sample::sample_surface;
 use crate::data::projector::correction::PoseCorrection;
 use crate::data::volume::BoxMm;
 use crate::error::{CoreError, Result, read_file, to_json, write_file};
-use crate::method::anchor_op::grid::AnchorGrid;
-use crate::method::anchor_op::{DeviceGrid, anchor_targets};
 use crate::method::densify::{self, DensifyStats};
 use crate::method::field_health::DensitySpread;
 use crate::method::init::initialise;
 use crate::method::loss::LossTargets;
-use crate::method::model::{GaussianInit, GaussianModel, ScaleBounds, host_vec};
-use crate::method::optim::FusedAdam;
-use crate::method::optim::state_edit::edit_state;
+use crate::method::model::{GaussianInit, GaussianModel, ScaleBounds};
 use crate::method::pose::ViewPoses;
 use crate::method::working_box::working_box_from_inputs;
+use ctadsa_ops::anchor_op::grid::AnchorGrid;
+use ctadsa_ops::anchor_op::{DeviceGrid, anchor_targets};
+use ctadsa_ops::optim::FusedAdam;
+use ctadsa_ops::optim::state_edit::edit_state;
+use ctadsa_ops::readback::host_vec;
 
 /// Seconds spent per stage in one step.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
@@ -492,7 +493,7 @@ impl Trainer {
         let m = if cfg.loss.pa_samples == 0 { n } else { cfg.loss.pa_samples.min(n) };
         let sample: Vec<i64> =
             if m == n { (0..n as i64).collect() } else { (0..m).map(|_| rng.random_range(0..n as i64)).collect() };
-        crate::method::readback::count_upload(m);
+        ctadsa_ops::readback::count_upload(m);
         let sel = Tensor::<1, Int>::from_data(TensorData::new(sample, [m]), &self.device);
         let chosen = model.means.val().select(0, sel);
         let (target, keep) = anchor_targets(chosen.clone(), anchor);

@@ -226,11 +226,8 @@ pub fn branch_confidence(tree: &VesselTree, views: &[ConeBeamView]) -> Vec<Branc
                     if total > 0.0 { own / total } else { 0.0 }
                 })
                 .collect();
-            let confidence = if new {
-                view_support(&unique_support) * (1.0 - (-length_mm / LENGTH_SCALE_MM).exp())
-            } else {
-                1.0
-            };
+            let confidence =
+                if new { view_support(&unique_support) * (1.0 - (-length_mm / LENGTH_SCALE_MM).exp()) } else { 1.0 };
             let connected_to_prior = component_has_prior[component_root(tree, nodes[0])];
             Branch { nodes, new, length_mm, mean_radius_mm, connected_to_prior, unique_support, confidence }
         })
@@ -293,7 +290,7 @@ pub fn without_doubtful_branches(
     let mut kept_confidence = Vec::new();
     for (i, n) in tree.nodes.iter().enumerate().filter(|(i, _)| keep[*i]) {
         index[i] = out.nodes.len();
-        out.nodes.push(n.clone());
+        out.nodes.push(*n);
         kept_confidence.push(confidence[i]);
     }
     for n in &mut out.nodes {
@@ -318,7 +315,10 @@ pub fn mesh_without_doubtful(mesh: &TriMesh, vertex_confidence: &[f64], min_conf
 /// Every vertex's confidence: that of the nearest node of `tree`.
 pub fn vertex_confidence(mesh: &TriMesh, tree: &VesselTree, node_confidence: &[f64]) -> Vec<f64> {
     let nodes: Vec<DVec3> = tree.nodes.iter().map(|n| n.position_mm).collect();
-    nearest_points(&mesh.vertices, &nodes).iter().map(|&(_, i)| node_confidence.get(i).copied().unwrap_or(1.0)).collect()
+    nearest_points(&mesh.vertices, &nodes)
+        .iter()
+        .map(|&(_, i)| node_confidence.get(i).copied().unwrap_or(1.0))
+        .collect()
 }
 
 /// Every node's confidence: the confidence of the branch it ends or lies inside (1 for the

@@ -26,7 +26,6 @@ use crate::eval::score::{CaseTruth, EvalOptions};
 use crate::eval::surface_metrics::Coverage;
 use crate::eval::topology::{TopologyScores, topology_scores};
 use crate::method::field_health::DensitySpread;
-use crate::method::model::host_vec;
 use crate::method::train::{StepLog, Trainer};
 use crate::method::training_time::TrainingTime;
 use crate::output::centreline::{CentrelineSummary, SolidPart, completed_centreline, write_centreline};
@@ -36,6 +35,7 @@ use crate::output::extraction::{
     prior_solid, score_levels,
 };
 use crate::output::plot::{PALETTE, Series, line_plot};
+use ctadsa_ops::readback::host_vec;
 use ctadsa_render::ConeBeamView;
 
 /// Numbers of a finished run.

@@ -4,40 +4,13 @@
 use burn::module::Module;
 use burn::nn::{Linear, LinearConfig};
 use burn::tensor::{Device, Tensor, TensorData};
-use serde::{Deserialize, Serialize};
 
-use super::hash_grid::{HashGrid, HashGridConfig};
-use super::linear_op::{Activation, fused_linear};
-use super::uniform_tensor;
 use burn::module::Param;
+use ctadsa_ops::hash_grid::HashGrid;
+use ctadsa_ops::linear_op::{Activation, fused_linear};
+use ctadsa_ops::random::uniform_tensor;
 
-/// The MLP's output non-linearity (both non-negative).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum OutputActivation {
-    /// `max(0, x)`, as the reference implementation (can start or get stuck at zero).
-    Relu,
-    /// `ln(1 + eˣ)`: strictly positive, never stuck.
-    Softplus,
-}
-
-/// Field settings.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct FieldConfig {
-    pub encoding: HashGridConfig,
-    /// Width of the hidden layers.
-    pub hidden: usize,
-    /// Number of hidden layers (1–4).
-    pub hidden_layers: usize,
-    pub output: OutputActivation,
-}
-
-impl Default for FieldConfig {
-    fn default() -> Self {
-        Self { encoding: HashGridConfig::default(), hidden: 64, hidden_layers: 2, output: OutputActivation::Softplus }
-    }
-}
+pub use crate::config::{FieldConfig, OutputActivation};
 
 /// Fixed data of a field (not trained).
 #[derive(Debug, Clone, Copy)]

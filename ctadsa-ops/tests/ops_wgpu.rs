@@ -1,0 +1,200 @@
+//! The field's MLP layer op, the bounded scale op, the SSIM window-blur op and the SSIM op on wgpu against the CPU (when a wgpu
+//! adapter exists; `CTADSA_REQUIRE_WGPU=1` makes a missing adapter a failure).
+#![cfg(feature = "wgpu")]
+#![allow(deprecated)] // burn-ndarray is deprecated in burn 0.22; it is the CPU backend the tests use.
+
+use burn::tensor::{Device, Tensor, TensorData};
+use ctadsa_ops::blur_op::window_blur;
+use ctadsa_ops::linear_op::{Activation, fused_linear};
+use ctadsa_ops::readback::host_vec;
+use ctadsa_ops::scale_op::bounded_scale;
+use ctadsa_ops::ssim_op::ssim_mean;
+
+fn values(len: usize, seed: u64) -> Vec<f32> {
+    let mut s = seed;
+    (0..len)
+        .map(|_| {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (s >> 40) as f32 / (1u64 << 23) as f32 - 1.0
+        })
+        .collect()
+}
+
+fn wgpu_or_skip(what: &str) -> Option<Device> {
+    match ctadsa_render::gpu::probe::wgpu_adapter() {
+        Ok(name) => {
+            eprintln!("wgpu adapter: {name}");
+            Some(Device::wgpu(burn::tensor::DeviceKind::DefaultDevice))
+        }
+        Err(e) if std::env::var("CTADSA_REQUIRE_WGPU").is_ok_and(|v| v == "1") => {
+            panic!("CTADSA_REQUIRE_WGPU=1 but {e}")
+        }
+        Err(e) => {
+            eprintln!("SKIPPED: {what} wgpu parity not run: {e}");
+            None
+        }
+    }
+}
+
+fn assert_close(name: &str, a: &[f32], b: &[f32]) {
+    assert_eq!(a.len(), b.len(), "{name}");
+    let worst = a.iter().zip(b).map(|(p, q)| (p - q).abs()).fold(0.0f32, f32::max);
+    let scale = a.iter().map(|q| q.abs()).fold(0.0f32, f32::max).max(1.0);
+    assert!(worst <= 1e-4 * scale, "{name}: wgpu differs by {worst} (scale {scale})");
+}
+
+#[test]
+fn window_blur_on_wgpu_matches_cpu() {
+    let Some(gpu) = wgpu_or_skip("window blur") else { return };
+    let [v, h, w] = [2, 19, 27];
+    let (x, up) = (values(v * h * w, 1), values(v * h * w, 2));
+    let run = |device: Device| {
+        let device = device.autodiff();
+        let x = Tensor::<3>::from_data(TensorData::new(x.clone(), [v, h, w]), &device).require_grad();
+        let up = Tensor::<3>::from_data(TensorData::new(up.clone(), [v, h, w]), &device);
+        let out = window_blur(x.clone());
+        let grads = (out.clone() * up).sum().backward();
+        (host_vec(out), host_vec(x.grad(&grads).unwrap()))
+    };
+    let (a, b) = (run(Device::ndarray()), run(gpu));
+    assert_close("blur forward", &a.0, &b.0);
+    assert_close("blur backward", &a.1, &b.1);
+}
+
+#[test]
+fn bounded_scale_on_wgpu_matches_cpu() {
+    let Some(gpu) = wgpu_or_skip("bounded scale") else { return };
+    let n = 301;
+    let (raw, up) = (values(3 * n, 7).iter().map(|v| 12.0 * v).collect::<Vec<f32>>(), values(3 * n, 8));
+    let run = |device: Device| {
+        let device = device.autodiff();
+        let raw = Tensor::<2>::from_data(TensorData::new(raw.clone(), [n, 3]), &device).require_grad();
+        let up = Tensor::<2>::from_data(TensorData::new(up.clone(), [n, 3]), &device);
+        let out = bounded_scale(raw.clone(), 0.05, 5.0);
+        let grads = (out.clone() * up).sum().backward();
+        (host_vec(out), host_vec(raw.grad(&grads).unwrap()))
+    };
+    let (a, b) = (run(Device::ndarray()), run(gpu));
+    assert_close("bounded scale forward", &a.0, &b.0);
+    assert_close("bounded scale backward", &a.1, &b.1);
+}
+
+#[test]
+fn fused_linear_on_wgpu_matches_cpu() {
+    let Some(gpu) = wgpu_or_skip("fused linear") else { return };
+    // Rows within one chunk of the weight-gradient sums, and over several with a partial last.
+    for n in [97, 600] {
+        fused_linear_matches_with(gpu.clone(), n);
+    }
+}
+
+fn fused_linear_matches_with(gpu: Device, n: usize) {
+    let (i, o) = (12, 8);
+    let (x, wt, b, up) = (values(n * i, 3), values(i * o, 4), values(o, 5), values(n * o, 6));
+    let run = |device: Device, act: Activation| {
+        let device = device.autodiff();
+        let x = Tensor::<2>::from_data(TensorData::new(x.clone(), [n, i]), &device).require_grad();
+        let w = Tensor::<2>::from_data(TensorData::new(wt.clone(), [i, o]), &device).require_grad();
+        let b = Tensor::<1>::from_data(TensorData::new(b.clone(), [o]), &device).require_grad();
+        let up = Tensor::<2>::from_data(TensorData::new(up.clone(), [n, o]), &device);
+        let out = fused_linear(x.clone(), w.clone(), b.clone(), act);
+        let grads = (out.clone() * up).sum().backward();
+        [
+            host_vec(out),
+            host_vec(x.grad(&grads).unwrap()),
+            host_vec(w.grad(&grads).unwrap()),
+            host_vec(b.grad(&grads).unwrap().reshape([1, o])),
+        ]
+    };
+    for act in [Activation::Relu, Activation::Softplus, Activation::Identity] {
+        let (a, b) = (run(Device::ndarray(), act), run(gpu.clone(), act));
+        for (k, name) in ["output", "x", "weight", "bias"].iter().enumerate() {
+            assert_close(&format!("{name} ({act:?}, {n} rows)"), &a[k], &b[k]);
+        }
+    }
+}
+
+#[test]
+fn ssim_on_wgpu_matches_cpu() {
+    let Some(gpu) = wgpu_or_skip("SSIM") else { return };
+    let [v, h, w] = [2, 23, 29];
+    let unit = |d: Vec<f32>| d.into_iter().map(|a| 0.5 * (a + 1.0)).collect::<Vec<f32>>();
+    let (x, y) = (unit(values(v * h * w, 7)), unit(values(v * h * w, 8)));
+    let run = |device: Device| {
+        let device = device.autodiff();
+        let x = Tensor::<3>::from_data(TensorData::new(x.clone(), [v, h, w]), &device).require_grad();
+        let y = Tensor::<3>::from_data(TensorData::new(y.clone(), [v, h, w]), &device);
+        let mu_y = window_blur(y.clone());
+        let syy = window_blur(y.clone() * y.clone()) - mu_y.clone() * mu_y.clone();
+        let out = ssim_mean(x.clone(), y, mu_y, syy);
+        let grads = out.clone().backward();
+        (host_vec(out), host_vec(x.grad(&grads).unwrap()))
+    };
+    let (a, b) = (run(Device::ndarray()), run(gpu));
+    assert_close("SSIM value", &a.0, &b.0);
+    // The gradient's entries are O(1 / pixels): compare relative to their largest.
+    let scale = a.1.iter().fold(0.0f32, |m, q| m.max(q.abs()));
+    let worst = a.1.iter().zip(&b.1).map(|(p, q)| (p - q).abs()).fold(0.0f32, f32::max);
+    assert!(scale > 0.0 && worst <= 1e-3 * scale, "SSIM gradient: wgpu differs by {worst} (scale {scale})");
+}
+
+#[test]
+fn anchor_targets_on_wgpu_match_cpu() {
+    use ctadsa_ops::anchor_op::grid::AnchorGrid;
+    use ctadsa_ops::anchor_op::{DeviceGrid, anchor_targets};
+    let Some(gpu) = wgpu_or_skip("anchor search") else { return };
+    // Points on a tube of radius 1 mm along x, and queries around it.
+    let pts: Vec<[f64; 3]> = (0..4000)
+        .map(|i| {
+            let (t, a) = (i as f64 * 0.005 - 10.0, i as f64 * 2.399);
+            [t, a.cos(), a.sin()]
+        })
+        .collect();
+    let q = values(3 * 1500, 11).iter().map(|v| 2.0 * v).collect::<Vec<f32>>();
+    let grid = AnchorGrid::new(&pts, 0.5);
+    let run = |device: Device| {
+        let dg = DeviceGrid::new(&grid, 8, 0.5, &device);
+        let queries = Tensor::<2>::from_data(TensorData::new(q.clone(), [1500, 3]), &device);
+        let (t, k) = anchor_targets(queries, &dg);
+        (host_vec(t), host_vec(k))
+    };
+    let (a, b) = (run(Device::ndarray()), run(gpu));
+    assert_eq!(a.1, b.1, "anchored centres");
+    assert!(a.1.contains(&1.0) && a.1.contains(&0.0), "a mix of anchored and free centres");
+    assert_close("anchor targets", &a.0, &b.0);
+}
+
+/// The fused Adam kernel against the CPU loop: several steps, with and without the coupled L2
+/// penalty, from the first step's zero moments on.
+#[test]
+fn fused_adam_on_wgpu_matches_cpu() {
+    use burn::optim::Optimizer;
+    use ctadsa_ops::optim::FusedAdam;
+    let Some(gpu) = wgpu_or_skip("fused Adam") else { return };
+    let n = 1000;
+    for decay in [None, Some(0.01)] {
+        let run = |device: Device| {
+            let adam = FusedAdam::new(1e-8).with_weight_decay(decay);
+            let mut p = Tensor::<1>::from_data(TensorData::new(values(n, 21), [n]), &device);
+            let mut state = None;
+            for step in 0..4u64 {
+                let g = Tensor::<1>::from_data(TensorData::new(values(n, 30 + step), [n]), &device);
+                let (next, s) = adam.step(1e-2, p, g, state);
+                p = next;
+                state = s;
+            }
+            let s = state.expect("state after a step");
+            (host_vec(p), host_vec(s.moment_1), host_vec(s.moment_2))
+        };
+        let (a, b) = (run(Device::ndarray()), run(gpu.clone()));
+        for (name, x, y) in [("parameter", &a.0, &b.0), ("first moment", &a.1, &b.1), ("second moment", &a.2, &b.2)] {
+            // Relative to the largest value (the moments are far below 1).
+            let scale = x.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+            let worst = x.iter().zip(y).map(|(p, q)| (p - q).abs()).fold(0.0f32, f32::max);
+            assert!(
+                scale > 0.0 && worst <= 1e-5 * scale,
+                "{name} ({decay:?}): wgpu differs by {worst} (scale {scale})"
+            );
+        }
+    }
+}
