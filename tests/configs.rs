@@ -37,6 +37,7 @@ fn shipped_configs_load_and_matrices_point_at_them() {
     let quick = Config::load(Some(&root.join("quick.toml")), &[]).unwrap();
     let prior_only = Config::load(Some(&root.join("baselines/prior-only.toml")), &[]).unwrap();
     assert_eq!(prior_only.init.n2, 0);
+    assert!(prior_only.densify.reseed_at.is_empty(), "the prior-only baseline must not seed from the images");
     assert_eq!(prior_only.run, quick.run, "a baseline changes only what it says");
     // The CPU configuration is the quick one with a larger budget and a lower 3-view iso-level
     // (more recall), nothing else.

@@ -99,27 +99,6 @@ fn point_phantom_lands_where_the_renderer_view_projects_it() {
     }
 }
 
-/// Writes a MetaImage (x fastest) for plastimatch.
-fn write_mha(path: &std::path::Path, v: &Volume<f32>) {
-    let g = v.grid;
-    let c = g.centre_mm(0, 0, 0);
-    let mut bytes = format!(
-        "ObjectType = Image\nNDims = 3\nBinaryData = True\nBinaryDataByteOrderMSB = False\n\
-         TransformMatrix = 1 0 0 0 1 0 0 0 1\nOffset = {} {} {}\nElementSpacing = {} {} {}\n\
-         DimSize = {} {} {}\nElementType = MET_FLOAT\nElementDataFile = LOCAL\n",
-        c.x, c.y, c.z, g.spacing_mm[0], g.spacing_mm[1], g.spacing_mm[2], g.dims[0], g.dims[1], g.dims[2]
-    )
-    .into_bytes();
-    for k in 0..g.dims[2] {
-        for j in 0..g.dims[1] {
-            for i in 0..g.dims[0] {
-                bytes.extend(v.data[g.index(i, j, k)].to_le_bytes());
-            }
-        }
-    }
-    std::fs::write(path, bytes).unwrap();
-}
-
 #[test]
 fn agrees_with_plastimatch_drr_per_pixel() {
     if std::process::Command::new("plastimatch").arg("--version").output().is_err() {
@@ -138,7 +117,7 @@ fn agrees_with_plastimatch_drr_per_pixel() {
     let dir = std::env::temp_dir().join(format!("ctadsa-plastimatch-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let mha = dir.join("v.mha");
-    write_mha(&mha, &vol);
+    ctadsa_core::bench::plastimatch::write_mha(&mha, &vol).unwrap();
     for angle in [-90.0f64, 0.0, -45.0] {
         let geom = geometry(angle, 120, 0.6);
         let view = ConeBeamView::from_tigre(&geom).unwrap();
