@@ -295,6 +295,9 @@ pub fn run(args: BenchArgs) -> Result<()> {
             Ok(())
         }
         BenchWhat::Projector { voxels, size } => {
+            if !(8..=1024).contains(&voxels) || !(8..=4096).contains(&size) {
+                anyhow::bail!("--voxels must be in 8..=1024 and --size in 8..=4096, got {voxels} and {size}");
+            }
             print_projector(&bench_projector(voxels, size)?);
             Ok(())
         }
