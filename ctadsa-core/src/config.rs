@@ -396,7 +396,7 @@ pub struct OutputConfig {
     /// level is lowered locally towards it where the density's local maximum (within
     /// `faint_radius_mm`) is low: the surface is cut at `faint_fraction` × that maximum,
     /// between the two levels. 0 = off. 0.02 / 0.7 / 1 mm scored best of the five settings
-    /// measured (docs/RESULTS.md, "Faint vessels at their own level").
+    /// measured (docs/results/earlier-2026-11.md, "Faint vessels at their own level").
     pub faint_mask_threshold: f64,
     pub faint_fraction: f64,
     pub faint_radius_mm: f64,
