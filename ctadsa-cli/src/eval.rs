@@ -5,10 +5,12 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use clap::Args;
+use ctadsa_core::data::mesh::io::read_mesh;
 use ctadsa_core::data::tree::prior::split_by_diameter;
 use ctadsa_core::data::tree::swc::read_swc;
 use ctadsa_core::eval::metrics::{RegionScores, SurfaceScores};
 use ctadsa_core::eval::score::{EvalOptions, EvalReport, evaluate_files};
+use ctadsa_core::eval::topology::topology_of_surfaces;
 
 #[derive(Args)]
 pub struct EvalArgs {
@@ -33,13 +35,17 @@ pub struct EvalArgs {
     /// Paper column: area-uniform samples instead of mesh vertices.
     #[arg(long)]
     paper_samples: bool,
-    /// The true centreline tree (SWC, world mm, e.g. a case's gt/tree.swc); with
-    /// --prior-diameter gives the recall of the missing vessels.
-    #[arg(long, requires = "prior_diameter")]
+    /// The true centreline tree (SWC, world mm, e.g. a case's gt/tree.swc): gives clDice and the
+    /// Betti-0 error, and with --prior-diameter the recall of the missing vessels.
+    #[arg(long)]
     tree: Option<PathBuf>,
     /// Vessels thinner than this (mm) are the missing ones (the case's prior threshold).
     #[arg(long, requires = "tree")]
     prior_diameter: Option<f64>,
+    /// With --tree: voxel (mm) of the grid on which clDice and the Betti-0 error are scored
+    /// (both surfaces voxelised, the prediction's skeleton traced by TEASAR).
+    #[arg(long, default_value_t = 0.6)]
+    topology_voxel_mm: f64,
     /// Rigidly align the prediction to the ground truth by ICP first (reference parity).
     #[arg(long)]
     icp: bool,
@@ -106,16 +112,46 @@ pub fn run(args: EvalArgs) -> Result<()> {
         (Some(p), Some(m)) => Some((p.as_path(), m.as_path())),
         _ => None,
     };
-    let missing = match (&args.tree, args.prior_diameter) {
+    let tree = match &args.tree {
+        Some(path) => Some(read_swc(path)?.tree),
+        None => None,
+    };
+    let missing = match (&tree, args.prior_diameter) {
         (Some(tree), Some(d)) => {
             anyhow::ensure!(d.is_finite() && d >= 0.0, "--prior-diameter must be ≥ 0 mm, got {d}");
-            Some(split_by_diameter(&read_swc(tree)?.tree, d).missing)
+            Some(split_by_diameter(tree, d).missing)
         }
         _ => None,
     };
     let report = evaluate_files(&args.pred, &args.gt, split, missing.as_deref(), &options)?;
     print_report(&report);
-    let json = serde_json::to_string_pretty(&report)?;
+    let topology = match &tree {
+        Some(tree) => {
+            let v = args.topology_voxel_mm;
+            anyhow::ensure!(
+                v.is_finite() && (0.05..=10.0).contains(&v),
+                "--topology-voxel-mm must be in [0.05, 10], got {v}"
+            );
+            let t = topology_of_surfaces(&read_mesh(&args.pred)?, &read_mesh(&args.gt)?, &tree.segments(), v)?;
+            println!(
+                "\ntopology on {v} mm voxels: clDice {:.3} (topology precision {:.3}, sensitivity {:.3}), \
+                 {} components against {} (Betti-0 error {})",
+                t.cl_dice,
+                t.topology_precision,
+                t.topology_sensitivity,
+                t.components,
+                t.true_components,
+                t.betti0_error
+            );
+            Some(t)
+        }
+        None => None,
+    };
+    let mut value = serde_json::to_value(&report)?;
+    if let (Some(object), Some(t)) = (value.as_object_mut(), topology) {
+        object.insert("topology".into(), serde_json::to_value(t)?);
+    }
+    let json = serde_json::to_string_pretty(&value)?;
     match &args.json {
         Some(path) => std::fs::write(path, json).with_context(|| format!("cannot write {}", path.display()))?,
         None => println!("\n{json}"),

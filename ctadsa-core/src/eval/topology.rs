@@ -14,8 +14,12 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::data::mesh::TriMesh;
+use crate::data::mesh::voxelize::voxelize_union;
 use crate::data::tree::Segment;
-use crate::data::volume::Volume;
+use crate::data::volume::skeleton::{SkeletonParams, skeletonize};
+use crate::data::volume::{BoxMm, Grid, Volume};
+use crate::error::{CoreError, Result};
 
 /// Spacing (mm) of the points along the skeletons.
 pub const STEP_MM: f64 = 0.1;
@@ -94,6 +98,25 @@ pub fn topology_scores(
     }
 }
 
+/// [`topology_scores`] of two surfaces (`ctadsa eval`): both voxelised on one grid of
+/// `voxel_mm` covering them (1 mm margin; each connected component on its own, so that a
+/// prior joined with new vessels is filled where they overlap), the predicted skeleton traced by TEASAR in its solid
+/// (as a run's centreline, default settings), the true skeleton `true_tree`'s segments.
+pub fn topology_of_surfaces(
+    predicted: &TriMesh,
+    truth: &TriMesh,
+    true_tree: &[Segment],
+    voxel_mm: f64,
+) -> Result<TopologyScores> {
+    let (lo_p, hi_p) = predicted.bounds_mm().ok_or_else(|| CoreError::invalid("the predicted surface is empty"))?;
+    let (lo_t, hi_t) = truth.bounds_mm().ok_or_else(|| CoreError::invalid("the true surface is empty"))?;
+    let (lo, hi) = (lo_p.min(lo_t) - 1.0, hi_p.max(hi_t) + 1.0);
+    let grid = Grid::covering(&BoxMm { min_mm: lo.to_array(), max_mm: hi.to_array() }, voxel_mm)?;
+    let (solid, true_solid) = (voxelize_union(predicted, grid), voxelize_union(truth, grid));
+    let skeleton = skeletonize(&solid, &SkeletonParams::default()).segments();
+    Ok(topology_scores(&solid, &true_solid, &skeleton, true_tree))
+}
+
 #[cfg(test)]
 mod tests {
     use glam::DVec3;
@@ -112,6 +135,23 @@ mod tests {
 
     fn solid(segments: &[Segment]) -> Volume<u8> {
         rasterize_segments(segments, grid(), 2).map(|v| (v > 0.5) as u8)
+    }
+
+    #[test]
+    fn surfaces_are_scored_on_their_own_grid() {
+        use crate::data::mesh::tubes::segment_tubes;
+        let t = [tube(DVec3::new(-15.0, 0.0, 0.0), DVec3::new(15.0, 0.0, 0.0))];
+        let mesh = segment_tubes(&t, 1.0, 16);
+        let s = topology_of_surfaces(&mesh, &mesh, &t, 0.25).unwrap();
+        assert!(s.cl_dice > 0.95 && s.betti0_error == 0, "{s:?}");
+        // Two separate pieces of the tube against the whole one.
+        let halves = [
+            tube(DVec3::new(-15.0, 0.0, 0.0), DVec3::new(-3.0, 0.0, 0.0)),
+            tube(DVec3::new(3.0, 0.0, 0.0), DVec3::new(15.0, 0.0, 0.0)),
+        ];
+        let s = topology_of_surfaces(&segment_tubes(&halves, 1.0, 16), &mesh, &t, 0.25).unwrap();
+        assert_eq!((s.components, s.true_components, s.betti0_error), (2, 1, 1), "{s:?}");
+        assert!(topology_of_surfaces(&TriMesh::default(), &mesh, &t, 0.25).is_err());
     }
 
     #[test]

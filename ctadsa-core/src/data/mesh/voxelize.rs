@@ -93,6 +93,43 @@ pub fn voxelize_mesh(mesh: &TriMesh, grid: Grid) -> Volume<u8> {
     vol
 }
 
+/// Marks the voxels of `grid` inside any connected component of `mesh`, each component
+/// voxelised on its own (on the part of the grid its bounds cover) and the results joined: a
+/// union of overlapping closed surfaces (a prior and the vessels joined to it) is filled where
+/// [`voxelize_mesh`]'s single parity count would empty the overlaps.
+pub fn voxelize_union(mesh: &TriMesh, grid: Grid) -> Volume<u8> {
+    let mut out = Volume::<u8>::zeros(grid);
+    let h = grid.spacing_mm;
+    for part in mesh.components() {
+        let Some((lo, hi)) = part.bounds_mm() else { continue };
+        let range = |a: usize| {
+            let first = (((lo[a] - grid.origin_mm[a]) / h[a]).floor() - 1.0).max(0.0) as usize;
+            let last = ((((hi[a] - grid.origin_mm[a]) / h[a]).ceil() + 1.0).max(0.0) as usize).min(grid.dims[a]);
+            (first.min(grid.dims[a]), last)
+        };
+        let ranges = [range(0), range(1), range(2)];
+        if ranges.iter().any(|&(a, b)| a >= b) {
+            continue;
+        }
+        let sub = Grid {
+            dims: ranges.map(|(a, b)| b - a),
+            spacing_mm: h,
+            origin_mm: [0, 1, 2].map(|a| grid.origin_mm[a] + ranges[a].0 as f64 * h[a]),
+        };
+        let filled = voxelize_mesh(&part, sub);
+        for k in 0..sub.dims[2] {
+            for j in 0..sub.dims[1] {
+                for i in 0..sub.dims[0] {
+                    if filled.data[sub.index(i, j, k)] != 0 {
+                        out.data[grid.index(i + ranges[0].0, j + ranges[1].0, k + ranges[2].0)] = 1;
+                    }
+                }
+            }
+        }
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -142,5 +179,29 @@ mod tests {
         assert!(((vol - exact) / exact).abs() < 0.02, "{vol} vs {exact}");
         assert_eq!(solid.get(40, 40, 40), 1);
         assert_eq!(solid.get(2, 2, 2), 0);
+    }
+
+    #[test]
+    fn a_union_of_overlapping_closed_surfaces_is_filled_where_they_overlap() {
+        let grid = Grid { dims: [20, 20, 20], spacing_mm: [1.0; 3], origin_mm: [0.0; 3] };
+        let ball = |c: [f64; 3]| {
+            let mut v = Volume::<f32>::zeros(grid);
+            for k in 0..20 {
+                for j in 0..20 {
+                    for i in 0..20 {
+                        let p = [i as f64 + 0.5 - c[0], j as f64 + 0.5 - c[1], k as f64 + 0.5 - c[2]];
+                        v.data[grid.index(i, j, k)] = (5.0 - (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt()) as f32;
+                    }
+                }
+            }
+            extract_isosurface(&v, 0.0)
+        };
+        let mut both = ball([8.0, 10.0, 10.0]);
+        both.append(&ball([12.0, 10.0, 10.0]));
+        let centre = grid.index(10, 9, 9);
+        assert_eq!(voxelize_mesh(&both, grid).data[centre], 0, "parity empties the overlap");
+        assert_eq!(voxelize_union(&both, grid).data[centre], 1);
+        let one = ball([8.0, 10.0, 10.0]);
+        assert_eq!(voxelize_union(&one, grid).data, voxelize_mesh(&one, grid).data);
     }
 }
