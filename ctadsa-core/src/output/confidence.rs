@@ -22,8 +22,9 @@ use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
 use crate::data::mesh::TriMesh;
+use crate::data::mesh::io::{read_ply_with, write_ply_with};
 use crate::data::tree::{KIND_NEW_VESSEL, KIND_PRIOR_VESSEL, VesselTree};
-use crate::error::{CoreError, Result, read_file, write_file};
+use crate::error::{Result, write_file};
 use crate::eval::metrics::nearest_points;
 
 /// Bins of the confidence in `summary.json` and the pictures: `[k/BINS, (k+1)/BINS)`, the last
@@ -402,72 +403,15 @@ pub const MESH_CONFIDENCE: &str = "mesh-confidence.ply";
 
 /// Writes `mesh` as binary PLY with a float `confidence` per vertex ([`vertex_confidence`]).
 pub fn write_mesh_confidence(path: &Path, mesh: &TriMesh, vertex_confidence: &[f64]) -> Result<()> {
-    let header = format!(
-        "ply\nformat binary_little_endian 1.0\ncomment ctadsa completed mesh, world coordinates in mm; \
-         confidence of the nearest centreline branch (1 = prior vessel)\nelement vertex {}\n\
-         property float x\nproperty float y\nproperty float z\nproperty float confidence\n\
-         element face {}\nproperty list uchar int vertex_indices\nend_header\n",
-        mesh.vertices.len(),
-        mesh.faces.len()
-    );
-    let mut out = header.into_bytes();
-    for (v, &c) in mesh.vertices.iter().zip(vertex_confidence) {
-        for x in [v.x, v.y, v.z, c] {
-            out.extend((x as f32).to_le_bytes());
-        }
-    }
-    for f in &mesh.faces {
-        out.push(3);
-        for &i in f {
-            out.extend((i as i32).to_le_bytes());
-        }
-    }
-    write_file(path, &out)
+    let comment = "ctadsa completed mesh, world coordinates in mm; confidence of the nearest centreline branch (1 = prior vessel)";
+    write_ply_with(path, mesh, &[("confidence", vertex_confidence)], comment)
 }
 
 /// Reads what [`write_mesh_confidence`] wrote: the mesh and each vertex's confidence. Errors
 /// name the file.
 pub fn read_mesh_confidence(path: &Path) -> Result<(TriMesh, Vec<f32>)> {
-    let bytes = read_file(path)?;
-    let bad = |what: &str| CoreError::format(path, format!("not a mesh-confidence PLY: {what}"));
-    let end = bytes.windows(11).position(|w| w == b"end_header\n").ok_or_else(|| bad("no end_header"))? + 11;
-    let header = std::str::from_utf8(&bytes[..end]).map_err(|_| bad("header not UTF-8"))?;
-    let count = |element: &str| -> Result<usize> {
-        header
-            .lines()
-            .find_map(|l| l.strip_prefix(&format!("element {element} ")))
-            .and_then(|n| n.trim().parse().ok())
-            .ok_or_else(|| bad(&format!("no `element {element}` count")))
-    };
-    let (nv, nf) = (count("vertex")?, count("face")?);
-    let body = &bytes[end..];
-    let need = nv.checked_mul(16).zip(nf.checked_mul(13)).and_then(|(a, b)| a.checked_add(b));
-    if need != Some(body.len()) {
-        return Err(bad(&format!("{nv} vertices and {nf} faces need other than {} bytes", body.len())));
-    }
-    let f32_at = |o: usize| f32::from_le_bytes([body[o], body[o + 1], body[o + 2], body[o + 3]]);
-    let mut mesh = TriMesh::default();
-    let mut confidence = Vec::with_capacity(nv);
-    for k in 0..nv {
-        let o = 16 * k;
-        mesh.vertices.push(DVec3::new(f32_at(o) as f64, f32_at(o + 4) as f64, f32_at(o + 8) as f64));
-        confidence.push(f32_at(o + 12));
-    }
-    for k in 0..nf {
-        let o = 16 * nv + 13 * k;
-        if body[o] != 3 {
-            return Err(bad("a face is not a triangle"));
-        }
-        let idx = |j: usize| {
-            i32::from_le_bytes([body[o + 1 + 4 * j], body[o + 2 + 4 * j], body[o + 3 + 4 * j], body[o + 4 + 4 * j]])
-        };
-        let face = [idx(0), idx(1), idx(2)];
-        if face.iter().any(|&i| i < 0 || i as usize >= nv) {
-            return Err(bad("a face index is out of range"));
-        }
-        mesh.faces.push(face.map(|i| i as u32));
-    }
-    Ok((mesh, confidence))
+    let (mesh, confidence) = read_ply_with(path, "confidence")?;
+    Ok((mesh, confidence.into_iter().map(|c| c as f32).collect()))
 }
 
 /// The faces of `mesh` in one mesh per confidence bin, by the mean of their vertices'

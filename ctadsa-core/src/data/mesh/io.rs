@@ -142,16 +142,25 @@ fn obj_bytes(mesh: &TriMesh) -> Vec<u8> {
 }
 
 fn ply_bytes(mesh: &TriMesh) -> Vec<u8> {
-    let header = format!(
-        "ply\nformat binary_little_endian 1.0\ncomment ctadsa mesh, world coordinates in mm\n\
-         element vertex {}\nproperty float x\nproperty float y\nproperty float z\n\
-         element face {}\nproperty list uchar int vertex_indices\nend_header\n",
-        mesh.vertices.len(),
-        mesh.faces.len()
+    ply_bytes_with(mesh, &[], "ctadsa mesh, world coordinates in mm")
+}
+
+/// Binary PLY of `mesh` with extra float vertex properties `columns` (name, one value per
+/// vertex) after x, y, z.
+fn ply_bytes_with(mesh: &TriMesh, columns: &[(&str, &[f64])], comment: &str) -> Vec<u8> {
+    let mut header = format!(
+        "ply\nformat binary_little_endian 1.0\ncomment {comment}\n\
+         element vertex {}\nproperty float x\nproperty float y\nproperty float z\n",
+        mesh.vertices.len()
     );
+    for (name, _) in columns {
+        let _ = writeln!(header, "property float {name}");
+    }
+    let _ = write!(header, "element face {}\nproperty list uchar int vertex_indices\nend_header\n", mesh.faces.len());
     let mut out = header.into_bytes();
-    for v in &mesh.vertices {
-        for c in [v.x, v.y, v.z] {
+    for (k, v) in mesh.vertices.iter().enumerate() {
+        let extra = columns.iter().map(|(_, values)| values.get(k).copied().unwrap_or(f64::NAN));
+        for c in [v.x, v.y, v.z].into_iter().chain(extra) {
             out.extend((c as f32).to_le_bytes());
         }
     }
@@ -162,6 +171,23 @@ fn ply_bytes(mesh: &TriMesh) -> Vec<u8> {
         }
     }
     out
+}
+
+/// Writes `mesh` as binary PLY with extra float vertex properties `columns` (name, one value
+/// per vertex), e.g. a per-vertex confidence.
+pub fn write_ply_with(path: &Path, mesh: &TriMesh, columns: &[(&str, &[f64])], comment: &str) -> Result<()> {
+    write_file(path, &ply_bytes_with(mesh, columns, comment))
+}
+
+/// Reads a PLY mesh (checked as [`read_mesh`] does) and the values of its scalar vertex
+/// property `property` (an error naming the file when it has none).
+pub fn read_ply_with(path: &Path, property: &str) -> Result<(TriMesh, Vec<f64>)> {
+    let (mesh, values) = parse_ply_with(&read_file(path)?, Some(property)).map_err(|p| CoreError::format(path, p))?;
+    validate(&mesh).map_err(|p| CoreError::format(path, p))?;
+    if values.len() != mesh.vertices.len() {
+        return Err(CoreError::format(path, format!("no vertex property `{property}`")));
+    }
+    Ok((mesh, values))
 }
 
 /// Writes a point cloud as binary PLY: one vertex element with float properties `columns`,
@@ -280,6 +306,11 @@ fn check_ply_sizes(elements: &[PlyElement], body_bytes: usize) -> std::result::R
 /// Parses a PLY mesh (ASCII or binary little-endian) with `vertex` x/y/z and `face`
 /// `vertex_indices` (or `vertex_index`).
 pub fn parse_ply(bytes: &[u8]) -> std::result::Result<TriMesh, String> {
+    parse_ply_with(bytes, None).map(|(mesh, _)| mesh)
+}
+
+/// [`parse_ply`], also collecting the values of the scalar vertex property `property`.
+fn parse_ply_with(bytes: &[u8], property: Option<&str>) -> std::result::Result<(TriMesh, Vec<f64>), String> {
     let end = bytes.windows(11).position(|w| w == b"end_header\n").ok_or("not a PLY file (no `end_header`)")?;
     let header = std::str::from_utf8(&bytes[..end]).map_err(|_| "PLY header is not text")?;
     let (ascii, elements) = parse_ply_header(header)?;
@@ -296,6 +327,7 @@ pub fn parse_ply(bytes: &[u8]) -> std::result::Result<TriMesh, String> {
         }
     };
     let mut mesh = TriMesh::default();
+    let mut values = Vec::new();
     for (name, count, props) in &elements {
         for _ in 0..*count {
             let mut xyz = [f64::NAN; 3];
@@ -308,6 +340,7 @@ pub fn parse_ply(bytes: &[u8]) -> std::result::Result<TriMesh, String> {
                                 "x" => xyz[0] = v,
                                 "y" => xyz[1] = v,
                                 "z" => xyz[2] = v,
+                                other if Some(other) == property => values.push(v),
                                 _ => {}
                             }
                         }
@@ -335,7 +368,7 @@ pub fn parse_ply(bytes: &[u8]) -> std::result::Result<TriMesh, String> {
             }
         }
     }
-    Ok(mesh)
+    Ok((mesh, values))
 }
 
 fn stl_bytes(mesh: &TriMesh) -> Vec<u8> {
