@@ -191,7 +191,7 @@ print(n, p.GetNumberOfLines(), sum(rad.GetValue(i) for i in range(n)), sum(vm.Ge
 #[cfg(feature = "wgpu")]
 #[test]
 fn wgpu_run_matches_the_cpu_run() {
-    let adapter = ctadsa_render::gpu::probe::wgpu_adapter();
+    let adapter = ctadsa_render::wgpu_adapter();
     let Ok(name) = adapter else {
         if std::env::var("CTADSA_REQUIRE_WGPU").is_ok_and(|v| v == "1") {
             panic!("CTADSA_REQUIRE_WGPU=1 but {}", adapter.unwrap_err());

@@ -20,7 +20,7 @@ const MAX_LAUNCHES_PER_STEP: f64 = 120.0;
 
 #[test]
 fn a_quick_training_step_launches_few_kernels_and_reads_nothing_back() {
-    let adapter = ctadsa_render::gpu::probe::wgpu_adapter();
+    let adapter = ctadsa_render::wgpu_adapter();
     let Ok(name) = adapter else {
         if std::env::var("CTADSA_REQUIRE_WGPU").is_ok_and(|v| v == "1") {
             panic!("CTADSA_REQUIRE_WGPU=1 but {}", adapter.unwrap_err());

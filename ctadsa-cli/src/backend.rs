@@ -34,7 +34,7 @@ impl BackendKind {
             BackendKind::Wgpu => {
                 #[cfg(feature = "wgpu")]
                 {
-                    match ctadsa_render::gpu::probe::wgpu_adapter() {
+                    match ctadsa_render::wgpu_adapter() {
                         Ok(name) => {
                             eprintln!("wgpu adapter: {name}");
                             Ok(Device::wgpu(burn::tensor::DeviceKind::DefaultDevice))

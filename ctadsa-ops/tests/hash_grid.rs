@@ -9,7 +9,7 @@ use ctadsa_ops::readback::host_vec;
 
 fn config() -> HashGridConfig {
     // Small table so that both dense and hashed levels occur.
-    HashGridConfig { levels: 6, features: 2, log2_table: 10, base_resolution: 4.0, growth: 1.8 }
+    HashGridConfig { levels: 6, features: 2, log2_table: 10, base_resolution: 4.0, growth: 1.8, ..Default::default() }
 }
 
 fn points(n: usize, device: &Device) -> Tensor<2> {
@@ -100,7 +100,7 @@ fn pooled_table_gradient_is_zeroed_and_never_overwrites_a_held_one() {
 #[cfg(feature = "wgpu")]
 #[test]
 fn wgpu_kernels_match_cpu() {
-    let adapter = ctadsa_render::gpu::probe::wgpu_adapter();
+    let adapter = ctadsa_render::wgpu_adapter();
     let Ok(name) = adapter else {
         if std::env::var("CTADSA_REQUIRE_WGPU").is_ok_and(|v| v == "1") {
             panic!("CTADSA_REQUIRE_WGPU=1 but {}", adapter.unwrap_err());
@@ -109,13 +109,16 @@ fn wgpu_kernels_match_cpu() {
         return;
     };
     eprintln!("wgpu adapter: {name}");
-    use ctadsa_render::gpu::atomics::{F32Add, force_f32_add};
+    use ctadsa_render::F32Add;
     // One set of tables for both runs (random tables differ per call).
     let table_data = grid(&Device::ndarray()).tables.val().into_data();
-    let run = |device: Device| {
+    let run = |device: Device, f32_add: F32Add| {
         let device = device.autodiff();
         let tables = Tensor::<2>::from_data(table_data.clone(), &device).require_grad();
-        let g = HashGrid { tables: burn::module::Param::from_tensor(tables), config: config() };
+        let g = HashGrid {
+            tables: burn::module::Param::from_tensor(tables),
+            config: HashGridConfig { f32_add, ..config() },
+        };
         let u = Tensor::<2>::from_data(points(300, &Device::ndarray()).into_data(), &device).require_grad();
         let w = Tensor::<2>::from_data(
             TensorData::new(
@@ -128,16 +131,14 @@ fn wgpu_kernels_match_cpu() {
         let grads = (out.clone() * w).sum().backward();
         (host_vec(out), host_vec(u.grad(&grads).unwrap()), host_vec(g.tables.val().grad(&grads).unwrap()))
     };
-    let a = run(Device::ndarray());
+    let a = run(Device::ndarray(), F32Add::Auto);
     // The table gradient is added atomically: with the device's f32 add and with the loop.
-    for mode in [F32Add::CompareExchange, F32Add::Native] {
-        force_f32_add(Some(mode));
-        let b = run(Device::wgpu(burn::tensor::DeviceKind::DefaultDevice));
+    for mode in [F32Add::CompareExchange, F32Add::Auto] {
+        let b = run(Device::wgpu(burn::tensor::DeviceKind::DefaultDevice), mode);
         for (name, x, y) in [("forward", &a.0, &b.0), ("positions", &a.1, &b.1), ("tables", &a.2, &b.2)] {
             let worst = x.iter().zip(y).map(|(p, q)| (p - q).abs()).fold(0.0f32, f32::max);
             let scale = x.iter().map(|q| q.abs()).fold(0.0f32, f32::max).max(1.0);
             assert!(worst <= 1e-4 * scale, "{name} ({mode:?}): wgpu differs by {worst} (scale {scale})");
         }
     }
-    force_f32_add(None);
 }

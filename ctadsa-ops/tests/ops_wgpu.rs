@@ -21,7 +21,7 @@ fn values(len: usize, seed: u64) -> Vec<f32> {
 }
 
 fn wgpu_or_skip(what: &str) -> Option<Device> {
-    match ctadsa_render::gpu::probe::wgpu_adapter() {
+    match ctadsa_render::wgpu_adapter() {
         Ok(name) => {
             eprintln!("wgpu adapter: {name}");
             Some(Device::wgpu(burn::tensor::DeviceKind::DefaultDevice))

@@ -6,8 +6,8 @@ use burn::backend::autodiff::grads::Gradients;
 use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
 use burn::backend::{Autodiff, AutodiffBackend, Backend, tensor::FloatTensor};
 
-use crate::VoxelGrid;
 use crate::ops::{RenderGrads, RenderSetup, XrayBackend};
+use crate::{RenderSettings, VoxelGrid};
 
 #[derive(Debug)]
 struct RenderBackward;
@@ -96,7 +96,7 @@ impl<B: Backend + XrayBackend, C: CheckpointStrategy> XrayBackend for Autodiff<B
         rotations: FloatTensor<Self>,
         densities: FloatTensor<Self>,
         grid: VoxelGrid,
-        k_sigma: f32,
+        settings: RenderSettings,
     ) -> FloatTensor<Self> {
         Self::from_inner(B::xray_voxelize(
             means.into_primitive(),
@@ -104,7 +104,7 @@ impl<B: Backend + XrayBackend, C: CheckpointStrategy> XrayBackend for Autodiff<B
             rotations.into_primitive(),
             densities.into_primitive(),
             grid,
-            k_sigma,
+            settings,
         ))
     }
 }

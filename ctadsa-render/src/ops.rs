@@ -8,8 +8,8 @@ use std::sync::Arc;
 
 use burn::backend::{Backend, ExtensionType, NdArray, backend_extension, tensor::FloatTensor};
 
-use crate::VoxelGrid;
 use crate::view_params::ViewParams;
+use crate::{F32Add, RenderSettings, VoxelGrid};
 
 /// The non-tensor inputs of a render call: the packed views and the footprint cut-off.
 #[derive(Debug, Clone)]
@@ -19,6 +19,8 @@ pub struct RenderSetup {
     /// Footprint cut-off in standard deviations (`k`): pixels whose ray passes farther than `k`
     /// Mahalanobis units from a Gaussian's centre do not see it.
     pub k_sigma: f32,
+    /// How the GPU kernels add atomically.
+    pub f32_add: F32Add,
 }
 
 impl RenderSetup {
@@ -76,7 +78,7 @@ pub trait XrayBackend: Backend {
         rotations: FloatTensor<Self>,
         densities: FloatTensor<Self>,
         grid: VoxelGrid,
-        k_sigma: f32,
+        settings: RenderSettings,
     ) -> FloatTensor<Self>;
 }
 
@@ -109,8 +111,8 @@ impl XrayBackend for NdArray {
         rotations: FloatTensor<Self>,
         densities: FloatTensor<Self>,
         grid: VoxelGrid,
-        k_sigma: f32,
+        settings: RenderSettings,
     ) -> FloatTensor<Self> {
-        crate::host_backend::voxelize(means, scales, rotations, densities, &grid, k_sigma)
+        crate::host_backend::voxelize(means, scales, rotations, densities, &grid, settings.k_sigma)
     }
 }

@@ -16,7 +16,7 @@ fn device() -> Device {
 
 fn render_one(g: &[RefGaussian], views: &ViewSet, k: f32) -> Vec<f32> {
     let t = to_tensors(g, &device());
-    to_vec(render(&t, views, &RenderSettings { k_sigma: k }).unwrap())
+    to_vec(render(&t, views, &RenderSettings { k_sigma: k, ..Default::default() }).unwrap())
 }
 
 #[test]

@@ -98,7 +98,7 @@ fn gradients_match_finite_differences_at(k: f32) {
     let mut rng = Rng(3);
     let weights: Vec<f64> = (0..n_px).map(|_| rng.uniform(-1.0, 1.0)).collect();
     let g = params(&to_tensors(&gs, &device));
-    let img = render(&g, &views, &RenderSettings { k_sigma: k }).unwrap();
+    let img = render(&g, &views, &RenderSettings { k_sigma: k, ..Default::default() }).unwrap();
     let wt = Tensor::<3>::from_data(
         TensorData::new(weights.iter().map(|&x| x as f32).collect::<Vec<_>>(), [views.len(), h as usize, w as usize]),
         &device,

@@ -20,7 +20,7 @@ fn random_anisotropic_gaussians_match_quadrature() {
     let views = view_set(&geoms);
     let t = to_tensors(&gaussians, &Device::ndarray());
     // k = 6: the cut-off tail is below 2e-8 of a ray's peak, so the full-line quadrature applies.
-    let img = to_vec(render(&t, &views, &RenderSettings { k_sigma: 6.0 }).unwrap());
+    let img = to_vec(render(&t, &views, &RenderSettings { k_sigma: 6.0, ..Default::default() }).unwrap());
     let (w, h) = (72usize, 72usize);
     for (v, geom) in geoms.iter().enumerate() {
         let mut reference = Vec::with_capacity(w * h);

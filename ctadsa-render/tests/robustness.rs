@@ -110,7 +110,10 @@ fn bad_shapes_views_and_settings_are_errors() {
         render(&wrong, &views, &RenderSettings::default()),
         Err(RenderError::Shape { name: "rotations", .. })
     ));
-    assert!(matches!(render(&g, &views, &RenderSettings { k_sigma: f32::NAN }), Err(RenderError::InvalidSetting(_))));
+    assert!(matches!(
+        render(&g, &views, &RenderSettings { k_sigma: f32::NAN, ..Default::default() }),
+        Err(RenderError::InvalidSetting(_))
+    ));
     assert!(matches!(ViewSet::new(vec![]), Err(RenderError::NoViews)));
     let a = ConeBeamView::from_tigre(&small_geometry(0.0, 8, 1.0)).unwrap();
     let b = ConeBeamView::from_tigre(&small_geometry(0.0, 9, 1.0)).unwrap();
@@ -143,7 +146,10 @@ fn voxelize_matches_direct_evaluation() {
     let mut rng = Rng(5);
     let gs = random_gaussians(&mut rng, 5, 4.0, (0.5, 2.0));
     let grid = VoxelGrid::from_bounds([-8.0, -7.0, -6.0], [8.0, 9.0, 6.0], [16, 20, 12]).unwrap();
-    let vol = to_vec(voxelize(&to_tensors(&gs, &Device::ndarray()), &grid, &RenderSettings { k_sigma: 8.0 }).unwrap());
+    let vol = to_vec(
+        voxelize(&to_tensors(&gs, &Device::ndarray()), &grid, &RenderSettings { k_sigma: 8.0, ..Default::default() })
+            .unwrap(),
+    );
     let mut worst = 0.0f64;
     let qs: Vec<_> = gs.iter().map(|g| g.precision()).collect();
     for x in 0..16u32 {

@@ -11,13 +11,12 @@ mod common;
 
 use burn::tensor::{Device, DeviceKind, Tensor, TensorData};
 use common::*;
-use ctadsa_render::gpu::atomics::{F32Add, force_f32_add};
 use ctadsa_render::reference::RefGaussian;
-use ctadsa_render::{Gaussians, RenderSettings, ViewSet, VoxelGrid, render_with_stats, voxelize};
+use ctadsa_render::{F32Add, Gaussians, RenderSettings, ViewSet, VoxelGrid, render_with_stats, voxelize};
 
 /// The wgpu device, or `None` (after printing why) when there is no adapter.
 fn gpu() -> Option<Device> {
-    match ctadsa_render::gpu::probe::wgpu_adapter() {
+    match ctadsa_render::wgpu_adapter() {
         Ok(name) => {
             eprintln!("wgpu adapter: {name}");
             Some(Device::wgpu(DeviceKind::DefaultDevice))
@@ -32,15 +31,13 @@ fn gpu() -> Option<Device> {
     }
 }
 
-/// Runs `check` once per way of adding f32 atomically (the native add is used only where the
-/// device has it: the line printed says so), then restores the default.
-fn for_each_f32_add(check: impl Fn(F32Add)) {
-    for mode in [F32Add::CompareExchange, F32Add::Native] {
-        force_f32_add(Some(mode));
-        println!("{mode:?}");
-        check(mode);
+/// Runs `check` with the settings of each way of adding f32 atomically (`Auto` adds natively
+/// where the device can: the adapter line printed says whether it does).
+fn for_each_f32_add(check: impl Fn(&RenderSettings)) {
+    for f32_add in [F32Add::CompareExchange, F32Add::Auto] {
+        println!("{f32_add:?}");
+        check(&RenderSettings { f32_add, ..Default::default() });
     }
-    force_f32_add(None);
 }
 
 struct Outputs {
@@ -48,7 +45,7 @@ struct Outputs {
     grads: [Vec<f64>; 5],
 }
 
-fn run(gs: &[RefGaussian], views: &ViewSet, device: &Device, weights: &[f32]) -> Outputs {
+fn run(gs: &[RefGaussian], views: &ViewSet, device: &Device, weights: &[f32], settings: &RenderSettings) -> Outputs {
     let device = device.clone().autodiff();
     let t = to_tensors(gs, &device);
     let g = Gaussians {
@@ -58,7 +55,7 @@ fn run(gs: &[RefGaussian], views: &ViewSet, device: &Device, weights: &[f32]) ->
         densities: t.densities.require_grad(),
     };
     let probe = Tensor::<2>::zeros([gs.len(), 2], &device).require_grad();
-    let img = render_with_stats(&g, probe.clone(), views, &RenderSettings::default()).unwrap();
+    let img = render_with_stats(&g, probe.clone(), views, settings).unwrap();
     let dims = img.dims();
     let w = Tensor::<3>::from_data(TensorData::new(weights.to_vec(), dims), &device);
     let grads = (img.clone() * w).sum().backward();
@@ -83,9 +80,10 @@ fn forward_and_gradients_match_the_cpu() {
     let views =
         view_set(&[small_geometry(-90.0, 64, 0.8), small_geometry(0.0, 64, 0.8), small_geometry(-45.0, 64, 0.8)]);
     let weights: Vec<f32> = (0..3 * 64 * 64).map(|_| rng.uniform(-1.0, 1.0) as f32).collect();
-    let cpu = run(&gs, &views, &Device::ndarray(), &weights);
-    for_each_f32_add(|mode| {
-        let wgpu = run(&gs, &views, &gpu, &weights);
+    let cpu = run(&gs, &views, &Device::ndarray(), &weights, &RenderSettings::default());
+    for_each_f32_add(|settings| {
+        let mode = settings.f32_add;
+        let wgpu = run(&gs, &views, &gpu, &weights, settings);
         let err = rel_l2(&wgpu.image, &cpu.image);
         println!("image: relative L2 {err:.2e}");
         assert!(err <= 1e-4, "forward ({mode:?}) differs: {err:e}");
@@ -109,12 +107,12 @@ fn voxelize_matches_the_cpu() {
     let s = RenderSettings::default();
     let b: Vec<f64> =
         to_vec(voxelize(&to_tensors(&gs, &Device::ndarray()), &grid, &s).unwrap()).into_iter().map(f64::from).collect();
-    for_each_f32_add(|mode| {
+    for_each_f32_add(|settings| {
         let a: Vec<f64> =
-            to_vec(voxelize(&to_tensors(&gs, &gpu), &grid, &s).unwrap()).into_iter().map(f64::from).collect();
+            to_vec(voxelize(&to_tensors(&gs, &gpu), &grid, settings).unwrap()).into_iter().map(f64::from).collect();
         let err = rel_l2(&a, &b);
         println!("volume: relative L2 {err:.2e}");
-        assert!(err <= 1e-5, "{mode:?}: {err:e}");
+        assert!(err <= 1e-5, "{:?}: {err:e}", settings.f32_add);
     });
 }
 
@@ -124,7 +122,7 @@ fn edge_cases_stay_finite_on_the_gpu() {
     let views = view_set(&[small_geometry(0.0, 24, 1.0)]);
     let good = RefGaussian { mean: [0.0; 3], scale: [1.0; 3], quat: [1.0, 0.0, 0.0, 0.0], density: 1.0 };
     let weights = vec![1.0f32; 24 * 24];
-    let reference = run(&[good], &views, &gpu, &weights);
+    let reference = run(&[good], &views, &gpu, &weights, &RenderSettings::default());
     let cases = [
         RefGaussian { mean: [f64::NAN, 0.0, 0.0], ..good },
         RefGaussian { scale: [1.0, -1.0, 1.0], ..good },
@@ -132,15 +130,15 @@ fn edge_cases_stay_finite_on_the_gpu() {
         RefGaussian { density: f64::INFINITY, ..good },
     ];
     for bad in cases {
-        let out = run(&[good, bad], &views, &gpu, &weights);
+        let out = run(&[good, bad], &views, &gpu, &weights, &RenderSettings::default());
         assert!(out.image.iter().all(|v| v.is_finite()));
         assert!(rel_l2(&out.image, &reference.image) < 1e-6, "bad Gaussian {bad:?} changed the image");
         for g in &out.grads {
             assert!(g.iter().all(|v| v.is_finite()), "non-finite gradient for {bad:?}");
         }
     }
-    let huge = run(&[RefGaussian { scale: [5e3; 3], ..good }], &views, &gpu, &weights);
+    let huge = run(&[RefGaussian { scale: [5e3; 3], ..good }], &views, &gpu, &weights, &RenderSettings::default());
     assert!(huge.image.iter().all(|v| v.is_finite() && *v > 0.0));
-    let empty = run(&[], &views, &gpu, &weights);
+    let empty = run(&[], &views, &gpu, &weights, &RenderSettings::default());
     assert!(empty.image.iter().all(|&v| v == 0.0));
 }

@@ -250,7 +250,14 @@ mod tests {
             rotations: (0..n).flat_map(|i| [1.0, 0.1 * i as f32, 0.0, 0.0]).collect(),
         };
         let small = FieldConfig {
-            encoding: HashGridConfig { levels: 2, features: 2, log2_table: 8, base_resolution: 4.0, growth: 1.5 },
+            encoding: HashGridConfig {
+                levels: 2,
+                features: 2,
+                log2_table: 8,
+                base_resolution: 4.0,
+                growth: 1.5,
+                ..Default::default()
+            },
             hidden: 8,
             hidden_layers: 1,
             ..FieldConfig::default()

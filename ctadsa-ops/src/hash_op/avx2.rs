@@ -195,7 +195,14 @@ mod tests {
             eprintln!("skipped: this CPU has no AVX2 + FMA, so the AVX2 kernels never run here");
             return;
         }
-        let c = HashGridConfig { levels: 6, features: 2, log2_table: 10, base_resolution: 4.0, growth: 1.8 };
+        let c = HashGridConfig {
+            levels: 6,
+            features: 2,
+            log2_table: 10,
+            base_resolution: 4.0,
+            growth: 1.8,
+            ..Default::default()
+        };
         let lv: Vec<Level> = levels(&c);
         assert!(lv.iter().any(|l| l.dense) && lv.iter().any(|l| !l.dense));
         let mut rng = ChaCha8Rng::seed_from_u64(11);
@@ -204,10 +211,11 @@ mod tests {
         let tables: Vec<f32> = (0..c.features * c.rows()).map(|_| rng.random_range(-1.0f32..1.0)).collect();
         let (stride, f_n, mask) = (c.rows(), c.features, c.table_size() - 1);
         for (l, level) in lv.iter().enumerate() {
-            // SAFETY (both calls): the CPU has AVX2 and FMA (checked above).
+            // SAFETY: the CPU has AVX2 and FMA (checked above).
             let fast = unsafe { encode_level(level, mask, &u, &tables, stride, f_n) };
             assert_eq!(fast, encode_level_scalar(level, mask, &u, &tables, stride, f_n), "encode, level {l}");
             let (mut jac_fast, mut jac_slow) = (vec![0.0; n * f_n * 3], vec![0.0; n * f_n * 3]);
+            // SAFETY: as above.
             let fast = unsafe { encode_level_jacobian(level, mask, &u, &tables, stride, f_n, &mut jac_fast) };
             let slow = encode_level_jacobian_scalar(level, mask, &u, &tables, stride, f_n, &mut jac_slow);
             assert_eq!((fast, jac_fast), (slow, jac_slow), "encode with Jacobian, level {l}");

@@ -1,5 +1,6 @@
 //! The encoding's settings and hash: what the kernels index by, owned by the op.
 
+use ctadsa_render::F32Add;
 use serde::{Deserialize, Serialize};
 
 /// Hash multipliers, below 2¹⁹ so that `coordinate × P` fits in i32 for resolutions < 2¹².
@@ -16,11 +17,14 @@ pub struct HashGridConfig {
     pub log2_table: u32,
     pub base_resolution: f64,
     pub growth: f64,
+    /// How the GPU backward adds the table gradient atomically (not a TOML setting).
+    #[serde(skip)]
+    pub f32_add: F32Add,
 }
 
 impl Default for HashGridConfig {
     fn default() -> Self {
-        Self { levels: 16, features: 2, log2_table: 19, base_resolution: 8.0, growth: 1.45 }
+        Self { levels: 16, features: 2, log2_table: 19, base_resolution: 8.0, growth: 1.45, f32_add: F32Add::Auto }
     }
 }
 

@@ -609,7 +609,14 @@ mod tests {
 
     #[test]
     fn jacobian_path_gives_the_table_reading_gradients() {
-        let c = HashGridConfig { levels: 6, features: 2, log2_table: 10, base_resolution: 4.0, growth: 1.8 };
+        let c = HashGridConfig {
+            levels: 6,
+            features: 2,
+            log2_table: 10,
+            base_resolution: 4.0,
+            growth: 1.8,
+            ..Default::default()
+        };
         let mut rng = ChaCha8Rng::seed_from_u64(8);
         // More than two of the forward's point chunks, the last one partial.
         let n = 2 * POINT_CHUNK + 1003;
@@ -631,7 +638,14 @@ mod tests {
     /// points), bit for bit.
     #[test]
     fn two_feature_scatter_equals_the_generic_scatter_bit_for_bit() {
-        let c = HashGridConfig { levels: 6, features: 2, log2_table: 10, base_resolution: 4.0, growth: 1.8 };
+        let c = HashGridConfig {
+            levels: 6,
+            features: 2,
+            log2_table: 10,
+            base_resolution: 4.0,
+            growth: 1.8,
+            ..Default::default()
+        };
         let mut rng = ChaCha8Rng::seed_from_u64(12);
         let n = 4001;
         let u: Vec<f32> = (0..3 * n).map(|_| rng.random_range(-0.05f32..1.05)).collect();
@@ -650,7 +664,14 @@ mod tests {
     /// The forward overwrites every element of a reused Jacobian buffer (one full of NaN here).
     #[test]
     fn jacobian_into_a_used_buffer_overwrites_all_of_it() {
-        let c = HashGridConfig { levels: 6, features: 2, log2_table: 10, base_resolution: 4.0, growth: 1.8 };
+        let c = HashGridConfig {
+            levels: 6,
+            features: 2,
+            log2_table: 10,
+            base_resolution: 4.0,
+            growth: 1.8,
+            ..Default::default()
+        };
         let mut rng = ChaCha8Rng::seed_from_u64(13);
         let n = POINT_CHUNK + 1001;
         let u: Vec<f32> = (0..3 * n).map(|_| rng.random_range(-0.05f32..1.05)).collect();
@@ -663,7 +684,14 @@ mod tests {
 
     #[test]
     fn level_parallel_table_gradient_equals_the_sequential_scatter_bit_for_bit() {
-        let c = HashGridConfig { levels: 6, features: 2, log2_table: 10, base_resolution: 4.0, growth: 1.8 };
+        let c = HashGridConfig {
+            levels: 6,
+            features: 2,
+            log2_table: 10,
+            base_resolution: 4.0,
+            growth: 1.8,
+            ..Default::default()
+        };
         assert!((0..c.levels).any(|l| c.dense(l)) && (0..c.levels).any(|l| !c.dense(l)));
         let mut rng = ChaCha8Rng::seed_from_u64(5);
         let n = 5000;

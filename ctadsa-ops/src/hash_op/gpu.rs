@@ -1,7 +1,7 @@
 //! CubeCL kernels of the hash encoding, one unit per (point, level), mirroring `cpu.rs`.
 //! The backward writes per-level position gradients (summed afterwards) and adds the table
 //! gradients atomically: with the device's f32 add where it has one, else a compare-and-swap
-//! loop (`ctadsa_render::gpu::atomics`).
+//! loop (`ctadsa_render::kernels`).
 
 use burn::backend::ops::FloatTensorOps;
 use burn::backend::{FloatDType, TensorMetadata};
@@ -10,7 +10,7 @@ use burn_cubecl::cubecl::prelude::*;
 use burn_cubecl::tensor::CubeTensor;
 use burn_cubecl::{CubeBackend, cubecl};
 
-use ctadsa_render::gpu::atomics::{Accumulator, add_f32};
+use ctadsa_render::kernels::{Accumulator, add_f32};
 
 use crate::cube::{empty, launch_1d, prepare};
 
@@ -183,7 +183,7 @@ pub fn encode_backward(
     if n > 0 {
         let meta = meta(c, &u);
         let (count, dim) = dims(c, n, &u);
-        let acc = Accumulator::new(&grad_tables);
+        let acc = Accumulator::new(&grad_tables, c.f32_add);
         hash_backward_kernel::launch(
             &u.client,
             count,

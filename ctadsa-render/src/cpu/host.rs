@@ -17,6 +17,7 @@ impl HostGaussians<'_> {
     }
 
     /// Whether there are no Gaussians.
+    #[cfg_attr(not(feature = "internals"), allow(dead_code))]
     pub fn is_empty(&self) -> bool {
         self.densities.is_empty()
     }

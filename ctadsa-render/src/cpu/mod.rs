@@ -2,6 +2,8 @@
 //! They are the reference the GPU kernels are tested against.
 
 pub(crate) mod backward;
+#[cfg(feature = "internals")]
+mod counts;
 pub(crate) mod forward;
 pub(crate) mod host;
 pub(crate) mod lanes;
@@ -11,7 +13,11 @@ pub(crate) mod splat;
 pub(crate) mod transpose;
 pub(crate) mod voxelize;
 
-pub use backward::{HostGrads, render_backward};
-pub use forward::{count_lanes, count_pairs, render};
+#[cfg(feature = "internals")]
+pub use backward::HostGrads;
+pub use backward::render_backward;
+#[cfg(feature = "internals")]
+pub use counts::{count_lanes, count_pairs};
+pub use forward::render;
 pub use host::HostGaussians;
 pub use voxelize::voxelize;

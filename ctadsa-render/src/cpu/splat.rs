@@ -109,11 +109,11 @@ impl Splat {
 
 /// Loads Gaussians `first..first + LANES` (all present) with the block transposes of `T`.
 #[inline(always)]
-fn load_full<T: Transpose>(g: &HostGaussians, first: usize) -> Inputs {
+fn load_full<T: Transpose>(t: T, g: &HostGaussians, first: usize) -> Inputs {
     let block3 = |a: &[f32]| -> [F8; 3] {
-        T::columns3(a[3 * first..3 * (first + LANES)].try_into().expect("a whole batch")).map(F8)
+        t.columns3(a[3 * first..3 * (first + LANES)].try_into().expect("a whole batch")).map(F8)
     };
-    let quat = T::columns4(g.rotations[4 * first..4 * (first + LANES)].try_into().expect("a whole batch"));
+    let quat = t.columns4(g.rotations[4 * first..4 * (first + LANES)].try_into().expect("a whole batch"));
     let density: [f32; LANES] = g.densities[first..first + LANES].try_into().expect("a whole batch");
     Inputs { mean: block3(g.means), scale: block3(g.scales), quat: quat.map(F8), density: F8(density) }
 }
@@ -141,6 +141,7 @@ type SplatFields = [[f32; LANES]; 16];
 /// [`Splat`] fields.
 #[inline(always)]
 fn splat_fields<T: Transpose>(
+    t: T,
     g: &HostGaussians,
     start: usize,
     count: usize,
@@ -148,7 +149,7 @@ fn splat_fields<T: Transpose>(
     k_sigma: f32,
     fields: &mut SplatFields,
 ) {
-    let x = if count == LANES { load_full::<T>(g, start) } else { load(g, start, count) };
+    let x = if count == LANES { load_full(t, g, start) } else { load(g, start, count) };
     let o = project8(&x, vp, k_sigma);
     let cols = pack_ranges(o.col_min, o.col_max, o.valid);
     let rows = pack_ranges(o.row_min, o.row_max, o.valid);
@@ -186,6 +187,7 @@ pub fn project_splats(g: &HostGaussians, first: usize, vp: &ViewParams, k_sigma:
     #[multiversion::inherit_target]
     #[inline(never)]
     fn batch<T: Transpose>(
+        t: T,
         g: &HostGaussians,
         start: usize,
         count: usize,
@@ -193,30 +195,34 @@ pub fn project_splats(g: &HostGaussians, first: usize, vp: &ViewParams, k_sigma:
         k_sigma: f32,
         fields: &mut SplatFields,
     ) {
-        splat_fields::<T>(g, start, count, vp, k_sigma, fields);
+        splat_fields(t, g, start, count, vp, k_sigma, fields);
     }
     match_target! {
-        "x86_64+avx2" => store_splats::<transpose::Avx2>(g, first, vp, k_sigma, out, batch::<transpose::Avx2>),
-        _ => store_splats::<transpose::Plain>(g, first, vp, k_sigma, out, batch::<transpose::Plain>),
+        "x86_64+avx2" => match transpose::Avx2::detect() {
+            Some(avx2) => store_splats(avx2, g, first, vp, k_sigma, out, batch::<transpose::Avx2>),
+            None => store_splats(transpose::Plain, g, first, vp, k_sigma, out, batch::<transpose::Plain>),
+        },
+        _ => store_splats(transpose::Plain, g, first, vp, k_sigma, out, batch::<transpose::Plain>),
     }
 }
 
-/// The batch loop of [`project_splats`]: `batch` fills the fields, `T` transposes them into
+/// The batch loop of [`project_splats`]: `batch` fills the fields, `t` transposes them into
 /// records.
 #[inline(always)]
 fn store_splats<T: Transpose>(
+    t: T,
     g: &HostGaussians,
     first: usize,
     vp: &ViewParams,
     k_sigma: f32,
     out: &mut [Splat],
-    batch: fn(&HostGaussians, usize, usize, &ViewParams, f32, &mut SplatFields),
+    batch: fn(T, &HostGaussians, usize, usize, &ViewParams, f32, &mut SplatFields),
 ) {
     let mut fields = [[0.0; LANES]; 16];
     for (b, out) in out.chunks_mut(LANES).enumerate() {
-        batch(g, first + b * LANES, out.len(), vp, k_sigma, &mut fields);
-        let lo = T::transpose8(fields[..8].try_into().expect("8 fields"));
-        let hi = T::transpose8(fields[8..].try_into().expect("8 fields"));
+        batch(t, g, first + b * LANES, out.len(), vp, k_sigma, &mut fields);
+        let lo = t.transpose8(fields[..8].try_into().expect("8 fields"));
+        let hi = t.transpose8(fields[8..].try_into().expect("8 fields"));
         for (l, splat) in out.iter_mut().enumerate() {
             *splat = bytemuck::cast([lo[l], hi[l]]);
         }
@@ -251,11 +257,19 @@ mod tests {
         project_range(&g, 0, &vp, 3.0, &mut projected, None);
         let mut dispatched = vec![Splat::default(); n];
         project_splats(&g, 0, &vp, 3.0, &mut dispatched);
-        fn plain_batch(g: &HostGaussians, s: usize, c: usize, vp: &ViewParams, k: f32, f: &mut SplatFields) {
-            splat_fields::<transpose::Plain>(g, s, c, vp, k, f);
+        fn plain_batch(
+            t: transpose::Plain,
+            g: &HostGaussians,
+            s: usize,
+            c: usize,
+            vp: &ViewParams,
+            k: f32,
+            f: &mut SplatFields,
+        ) {
+            splat_fields(t, g, s, c, vp, k, f);
         }
         let mut plain = vec![Splat::default(); n];
-        store_splats::<transpose::Plain>(&g, 0, &vp, 3.0, &mut plain, plain_batch);
+        store_splats(transpose::Plain, &g, 0, &vp, 3.0, &mut plain, plain_batch);
         for (i, (s, p)) in dispatched.iter().chain(&plain).zip(projected.iter().cycle()).enumerate() {
             let i = i % n;
             let Some(p) = p else {

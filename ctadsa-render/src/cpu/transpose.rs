@@ -4,29 +4,31 @@
 //!
 //! Written lane by lane these compile to one scalar load or store per value plus a
 //! store-to-load stall per vector (a third of the projection's time in `perf`); [`Avx2`] does
-//! them with in-register shuffles. The kernels pick [`Avx2`] in their AVX2 versions
-//! (`multiversion`'s `match_target!`) and [`Plain`] elsewhere; the tests check one against the
-//! other.
+//! them with in-register shuffles. An implementation is a value (a token): an [`Avx2`] exists
+//! only on a CPU with AVX2 ([`Avx2::detect`]), so its safe methods never run AVX2 code where it
+//! would fault. The kernels use [`Avx2`] in their AVX2 versions (`multiversion`'s
+//! `match_target!`) and [`Plain`] elsewhere; the tests check one against the other.
 #![allow(clippy::needless_range_loop)]
 
 use super::lanes::LANES;
 
 /// Moving eight values per field between rows and lanes.
-pub trait Transpose {
+pub trait Transpose: Copy {
     /// Columns of a row-major `[8, 3]` block: `out[c][l] = block[3 l + c]`.
-    fn columns3(block: &[f32; 3 * LANES]) -> [[f32; LANES]; 3];
+    fn columns3(self, block: &[f32; 3 * LANES]) -> [[f32; LANES]; 3];
     /// Columns of a row-major `[8, 4]` block: `out[c][l] = block[4 l + c]`.
-    fn columns4(block: &[f32; 4 * LANES]) -> [[f32; LANES]; 4];
+    fn columns4(self, block: &[f32; 4 * LANES]) -> [[f32; LANES]; 4];
     /// The transpose: `out[l][f] = fields[f][l]`.
-    fn transpose8(fields: &[[f32; LANES]; 8]) -> [[f32; LANES]; 8];
+    fn transpose8(self, fields: &[[f32; LANES]; 8]) -> [[f32; LANES]; 8];
 }
 
 /// Plain loops (any target).
+#[derive(Debug, Clone, Copy)]
 pub struct Plain;
 
 impl Transpose for Plain {
     #[inline(always)]
-    fn columns3(block: &[f32; 3 * LANES]) -> [[f32; LANES]; 3] {
+    fn columns3(self, block: &[f32; 3 * LANES]) -> [[f32; LANES]; 3] {
         let mut out = [[0.0; LANES]; 3];
         for l in 0..LANES {
             for c in 0..3 {
@@ -37,7 +39,7 @@ impl Transpose for Plain {
     }
 
     #[inline(always)]
-    fn columns4(block: &[f32; 4 * LANES]) -> [[f32; LANES]; 4] {
+    fn columns4(self, block: &[f32; 4 * LANES]) -> [[f32; LANES]; 4] {
         let mut out = [[0.0; LANES]; 4];
         for l in 0..LANES {
             for c in 0..4 {
@@ -48,7 +50,7 @@ impl Transpose for Plain {
     }
 
     #[inline(always)]
-    fn transpose8(fields: &[[f32; LANES]; 8]) -> [[f32; LANES]; 8] {
+    fn transpose8(self, fields: &[[f32; LANES]; 8]) -> [[f32; LANES]; 8] {
         let mut out = [[0.0; LANES]; 8];
         for l in 0..LANES {
             for f in 0..8 {
@@ -59,26 +61,38 @@ impl Transpose for Plain {
     }
 }
 
-/// AVX2 shuffles. Only for kernels compiled with AVX2 enabled.
+/// AVX2 shuffles: a token that exists only on CPUs with AVX2.
 #[cfg(target_arch = "x86_64")]
-pub struct Avx2;
+#[derive(Debug, Clone, Copy)]
+pub struct Avx2 {
+    _proof: (),
+}
+
+#[cfg(target_arch = "x86_64")]
+impl Avx2 {
+    /// The token, on a CPU with AVX2.
+    pub fn detect() -> Option<Self> {
+        std::arch::is_x86_feature_detected!("avx2").then_some(Self { _proof: () })
+    }
+}
 
 #[cfg(target_arch = "x86_64")]
 impl Transpose for Avx2 {
     #[inline(always)]
-    fn columns3(block: &[f32; 3 * LANES]) -> [[f32; LANES]; 3] {
-        // SAFETY: `Avx2` is only used by kernels whose target enables AVX2 (`match_target!` arm
-        // "x86_64+avx2"), which are only called on CPUs that have it. Same below.
+    fn columns3(self, block: &[f32; 3 * LANES]) -> [[f32; LANES]; 3] {
+        // SAFETY: an `Avx2` exists only where the CPU has AVX2 (`Avx2::detect`).
         unsafe { avx2::columns3(block) }
     }
 
     #[inline(always)]
-    fn columns4(block: &[f32; 4 * LANES]) -> [[f32; LANES]; 4] {
+    fn columns4(self, block: &[f32; 4 * LANES]) -> [[f32; LANES]; 4] {
+        // SAFETY: as in `columns3`.
         unsafe { avx2::columns4(block) }
     }
 
     #[inline(always)]
-    fn transpose8(fields: &[[f32; LANES]; 8]) -> [[f32; LANES]; 8] {
+    fn transpose8(self, fields: &[[f32; LANES]; 8]) -> [[f32; LANES]; 8] {
+        // SAFETY: as in `columns3`.
         unsafe { avx2::transpose8(fields) }
     }
 }
@@ -212,28 +226,28 @@ mod tests {
     #[test]
     fn plain_moves_each_value_where_the_docs_say() {
         let b3 = block::<24>();
-        let c3 = Plain::columns3(&b3);
+        let c3 = Plain.columns3(&b3);
         assert_eq!((c3[1][2], c3[2][7]), (b3[7], b3[23]));
         let b4 = block::<32>();
-        let c4 = Plain::columns4(&b4);
+        let c4 = Plain.columns4(&b4);
         assert_eq!((c4[0][1], c4[3][6]), (b4[4], b4[27]));
         let fields: [[f32; 8]; 8] = std::array::from_fn(|f| std::array::from_fn(|l| (10 * f + l) as f32));
-        let t = Plain::transpose8(&fields);
+        let t = Plain.transpose8(&fields);
         assert_eq!((t[2][5], t[7][0]), (52.0, 7.0));
     }
 
     #[cfg(target_arch = "x86_64")]
     #[test]
     fn avx2_equals_plain() {
-        if !std::arch::is_x86_feature_detected!("avx2") {
+        let Some(avx2) = Avx2::detect() else {
             eprintln!("skipping the AVX2 check: this CPU has no AVX2");
             return;
-        }
+        };
         let b3 = block::<24>();
-        assert_eq!(Avx2::columns3(&b3), Plain::columns3(&b3));
+        assert_eq!(avx2.columns3(&b3), Plain.columns3(&b3));
         let b4 = block::<32>();
-        assert_eq!(Avx2::columns4(&b4), Plain::columns4(&b4));
+        assert_eq!(avx2.columns4(&b4), Plain.columns4(&b4));
         let fields: [[f32; 8]; 8] = std::array::from_fn(|f| std::array::from_fn(|l| (10 * f + l) as f32));
-        assert_eq!(Avx2::transpose8(&fields), Plain::transpose8(&fields));
+        assert_eq!(avx2.transpose8(&fields), Plain.transpose8(&fields));
     }
 }

@@ -7,9 +7,7 @@
 //! A kernel that adds atomically takes its accumulator twice, typed `Tensor<Atomic<f32>>` and
 //! `Tensor<Atomic<u32>>`, and a comptime flag that says which one is real (the other is a
 //! one-element placeholder); [`add_f32`] adds through the one the flag names, and the launcher
-//! picks the flag with [`f32_add`] and the arguments with [`Accumulator`].
-
-use std::sync::atomic::{AtomicU8, Ordering};
+//! picks the flag with [`launches_native`] and the arguments with [`Accumulator`].
 
 use burn_cubecl::cubecl;
 use burn_cubecl::tensor::CubeTensor;
@@ -17,43 +15,17 @@ use cubecl::ir::features::AtomicUsage;
 use cubecl::ir::{ElemType, FloatKind, Type};
 use cubecl::prelude::*;
 
-/// How a kernel adds an f32 to global memory atomically.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum F32Add {
-    /// The device's f32 atomic add.
-    Native,
-    /// A compare-and-swap loop on the f32's bits (`Atomic<u32>`).
-    CompareExchange,
-}
-
-/// 0: chosen per device; 1: [`F32Add::Native`]; 2: [`F32Add::CompareExchange`].
-static FORCED: AtomicU8 = AtomicU8::new(0);
-
-/// Makes every later launch in this process use `mode` (`None`: the device's best, the default).
-/// For tests and comparisons: both variants must give the same sums up to float rounding order.
-/// [`F32Add::Native`] on a device without it falls back to the loop.
-pub fn force_f32_add(mode: Option<F32Add>) {
-    let code = match mode {
-        None => 0,
-        Some(F32Add::Native) => 1,
-        Some(F32Add::CompareExchange) => 2,
-    };
-    FORCED.store(code, Ordering::Relaxed);
-}
+use crate::F32Add;
 
 /// Whether the device of `like` adds f32 atomically in hardware.
 pub fn has_native_f32_add(like: &CubeTensor) -> bool {
     like.client.properties().atomic_type_usage(Type::atomic(ElemType::Float(FloatKind::F32))).contains(AtomicUsage::Add)
 }
 
-/// The variant to launch on the device of `like`: native where the device has it, unless
-/// [`force_f32_add`] asked for the loop.
-pub fn f32_add(like: &CubeTensor) -> F32Add {
-    match FORCED.load(Ordering::Relaxed) {
-        2 => F32Add::CompareExchange,
-        _ if has_native_f32_add(like) => F32Add::Native,
-        _ => F32Add::CompareExchange,
-    }
+/// Whether to launch the native variant on the device of `like`: where the device has it,
+/// unless `requested` asks for the loop.
+pub fn launches_native(like: &CubeTensor, requested: F32Add) -> bool {
+    requested == F32Add::Auto && has_native_f32_add(like)
 }
 
 /// A kernel's accumulator bound as its two typed arguments.
@@ -68,15 +40,16 @@ pub struct Accumulator {
 
 impl Accumulator {
     /// `target` (f32, zero-initialised or holding the sums to add to) bound for the variant
-    /// [`f32_add`] picks on its device.
-    pub fn new(target: &CubeTensor) -> Self {
+    /// [`launches_native`] picks on its device.
+    pub fn new(target: &CubeTensor, requested: F32Add) -> Self {
         use burn::backend::ops::FloatTensorOps;
         use burn::backend::{FloatDType, Shape};
         // Never read or written (the kernel's comptime branch drops the other argument's use).
         let placeholder = burn_cubecl::CubeBackend::float_empty(Shape::from(vec![1]), &target.device, FloatDType::F32);
-        match f32_add(target) {
-            F32Add::Native => Self { native: true, as_f32: target.clone(), as_u32: placeholder },
-            F32Add::CompareExchange => Self { native: false, as_f32: placeholder, as_u32: target.clone() },
+        if launches_native(target, requested) {
+            Self { native: true, as_f32: target.clone(), as_u32: placeholder }
+        } else {
+            Self { native: false, as_f32: placeholder, as_u32: target.clone() }
         }
     }
 }

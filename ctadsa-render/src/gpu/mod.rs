@@ -18,8 +18,8 @@ use burn_cubecl::kernel::into_contiguous;
 use burn_cubecl::tensor::CubeTensor;
 use burn_cubecl::{CubeBackend, cubecl};
 
-use crate::VoxelGrid;
 use crate::ops::{RenderGrads, RenderSetup, XrayBackend};
+use crate::{RenderSettings, VoxelGrid};
 
 /// Units per cube for all launches.
 const CUBE_UNITS: u32 = 64;
@@ -73,7 +73,7 @@ impl XrayBackend for CubeBackend {
         }
         let views = packed_views(&setup, &means);
         let (count, dim) = launch_dims(&means, units);
-        let acc = atomics::Accumulator::new(&image);
+        let acc = atomics::Accumulator::new(&image, setup.f32_add);
         forward::render_forward_kernel::launch(
             &means.client,
             count,
@@ -148,7 +148,7 @@ impl XrayBackend for CubeBackend {
         rotations: FloatTensor<Self>,
         densities: FloatTensor<Self>,
         grid: VoxelGrid,
-        k_sigma: f32,
+        settings: RenderSettings,
     ) -> FloatTensor<Self> {
         let (means, scales, rotations, densities) =
             (prepare(means), prepare(scales), prepare(rotations), prepare(densities));
@@ -162,7 +162,7 @@ impl XrayBackend for CubeBackend {
         g.extend(grid.dims.map(|d| d as f32));
         let grid_t = upload(g, vec![9], &means);
         let (count, dim) = launch_dims(&means, n);
-        let acc = atomics::Accumulator::new(&volume);
+        let acc = atomics::Accumulator::new(&volume, settings.f32_add);
         voxelize::voxelize_kernel::launch(
             &means.client,
             count,
@@ -175,7 +175,7 @@ impl XrayBackend for CubeBackend {
             acc.as_f32.into_tensor_arg(),
             acc.as_u32.into_tensor_arg(),
             n as u32,
-            k_sigma,
+            settings.k_sigma,
             acc.native,
         );
         volume
