@@ -236,9 +236,9 @@ fn assert_resume_is_exact(cfg: Config, at: usize, tag: &str) {
     let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("tiny-resume-{tag}-{}", std::process::id()));
     let mut straight = Trainer::new(case, cfg.clone(), device.clone()).unwrap();
     let mut checkpoint = None;
-    while straight.iteration < total {
+    while straight.iteration() < total {
         straight.step().unwrap();
-        if straight.iteration == at {
+        if straight.iteration() == at {
             checkpoint = Some(straight.save_checkpoint(&dir).unwrap());
         }
     }
@@ -253,14 +253,14 @@ fn assert_resume_is_exact(cfg: Config, at: usize, tag: &str) {
     let refused = Trainer::resume(&other, cfg.clone(), device.clone(), &checkpoint).err().expect("refused");
     assert!(refused.to_string().contains("another case"), "{refused}");
     let mut resumed = Trainer::resume(case, cfg, device, &checkpoint).unwrap();
-    assert_eq!(resumed.iteration, at);
-    while resumed.iteration < total {
+    assert_eq!(resumed.iteration(), at);
+    while resumed.iteration() < total {
         resumed.step().unwrap();
     }
     straight.flush_logs().unwrap();
     resumed.flush_logs().unwrap();
-    assert_eq!(straight.history.len(), resumed.history.len(), "every step logged");
-    for (x, y) in straight.history[at..].iter().zip(&resumed.history[at..]) {
+    assert_eq!(straight.history().len(), resumed.history().len(), "every step logged");
+    for (x, y) in straight.history()[at..].iter().zip(&resumed.history()[at..]) {
         assert_eq!((x.loss, x.gaussians), (y.loss, y.gaussians), "iteration {}: straight vs resumed", x.iteration);
     }
     let (a, b) = (straight.host_gaussians(), resumed.host_gaussians());
@@ -301,7 +301,7 @@ fn checkpoint_with_the_padded_table_layout_resumes_exactly() {
     let (case, device) = (tiny_case(), Device::ndarray().autodiff());
     let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("tiny-padded-{}", std::process::id()));
     let mut straight = Trainer::new(case, cfg.clone(), device.clone()).unwrap();
-    while straight.iteration < 6 {
+    while straight.iteration() < 6 {
         straight.step().unwrap();
     }
     let ck = straight.save_checkpoint(&dir).unwrap();
@@ -327,13 +327,13 @@ fn checkpoint_with_the_padded_table_layout_resumes_exactly() {
     optim.save(ck.join("optim-field.bpk")).unwrap();
     let mut resumed = Trainer::resume(case, cfg, device, &ck).unwrap();
     assert_eq!(host_vec(resumed.model().field.grid.tables.val()), host_vec(straight.model().field.grid.tables.val()));
-    while straight.iteration < 12 {
+    while straight.iteration() < 12 {
         straight.step().unwrap();
         resumed.step().unwrap();
     }
     straight.flush_logs().unwrap();
     resumed.flush_logs().unwrap();
-    for (x, y) in straight.history[6..].iter().zip(&resumed.history[6..]) {
+    for (x, y) in straight.history()[6..].iter().zip(&resumed.history()[6..]) {
         assert_eq!(x.loss, y.loss, "iteration {}: straight vs resumed from the padded layout", x.iteration);
     }
     assert_eq!(straight.host_gaussians(), resumed.host_gaussians());
@@ -353,11 +353,11 @@ fn fused_adam_training_matches_burns_adam() {
         cfg.densify.every = 15;
         cfg.densify.grad_threshold = 1e-6;
         let mut t = Trainer::new(case, cfg, Device::ndarray().autodiff()).unwrap();
-        while t.iteration < 50 {
+        while t.iteration() < 50 {
             t.step().unwrap();
         }
         t.flush_logs().unwrap();
-        (t.history.iter().map(|h| (h.loss, h.gaussians)).collect::<Vec<_>>(), t.host_gaussians())
+        (t.history().iter().map(|h| (h.loss, h.gaussians)).collect::<Vec<_>>(), t.host_gaussians())
     };
     let (fused, burn) = (trajectory(AdamImpl::Fused), trajectory(AdamImpl::Burn));
     assert_eq!(fused.0, burn.0, "losses and Gaussian counts per step");
@@ -378,17 +378,17 @@ fn densification_grows_the_model_and_resumes_exactly() {
     let case = tiny_case();
     let mut t = Trainer::new(case, cfg.clone(), Device::ndarray().autodiff()).unwrap();
     let n0 = t.model().len();
-    while t.iteration < 40 {
+    while t.iteration() < 40 {
         t.step().unwrap();
     }
     t.flush_logs().unwrap();
-    assert_eq!(t.history.len(), 40, "every step logged");
+    assert_eq!(t.history().len(), 40, "every step logged");
     let grown = t.model().len();
     assert!(grown > n0 && grown <= 4000, "densification went from {n0} to {grown} Gaussians (cap 4000)");
-    let first = t.history[0].loss;
-    let last = t.history.last().unwrap().loss;
+    let first = t.history()[0].loss;
+    let last = t.history().last().unwrap().loss;
     assert!(last < first, "loss {first} → {last} across densification");
-    assert!(t.history.iter().all(|h| h.loss.is_finite()));
+    assert!(t.history().iter().all(|h| h.loss.is_finite()));
     assert_resume_is_exact(cfg, 15, "densify");
 }
 
@@ -405,18 +405,18 @@ fn reseeding_adds_gaussians_where_the_views_are_unexplained_and_resumes_exactly(
     cfg.densify.reseed_n = 400;
     cfg.densify.max_gaussians = 4000;
     let mut t = Trainer::new(tiny_case(), cfg.clone(), Device::ndarray().autodiff()).unwrap();
-    let (n0, seeds0) = (t.model().len(), t.n2);
-    while t.iteration < 15 {
+    let (n0, seeds0) = (t.model().len(), t.seed_counts().1);
+    while t.iteration() < 15 {
         t.step().unwrap();
     }
     let added = t.model().len() - n0;
     assert!(added > 0 && added <= 400, "re-seeding added {added} Gaussians (at most 400)");
-    assert_eq!(t.n2, seeds0 + added, "counted as image seeds");
-    while t.iteration < 30 {
+    assert_eq!(t.seed_counts().1, seeds0 + added, "counted as image seeds");
+    while t.iteration() < 30 {
         t.step().unwrap();
     }
     t.flush_logs().unwrap();
-    assert!(t.history.iter().all(|h| h.loss.is_finite()));
+    assert!(t.history().iter().all(|h| h.loss.is_finite()));
     let mut member = cfg.clone();
     member.run.prior_only_member = true;
     assert!(member.prior_only_member().unwrap().densify.reseed_at.is_empty(), "the prior-only member does not re-seed");
@@ -445,19 +445,19 @@ fn densify_prunes_by_the_last_steps_densities_or_a_fresh_forward() {
     sorted.sort_by(f32::total_cmp);
     let thr = sorted[sorted.len() / 2];
     assert_ne!(below(&before, thr), below(&after, thr), "the step moves densities across the threshold");
-    t.cfg.densify.min_density = thr as f64;
+    t.cfg_mut().densify.min_density = thr as f64;
     let plan = t.densify().unwrap();
     assert_eq!(plan.pruned, below(&before, thr), "pruned by the last step's densities");
     let now = t.host_gaussians().3;
     let mut sorted = now.clone();
     sorted.sort_by(f32::total_cmp);
     let thr = sorted[sorted.len() / 2];
-    t.cfg.densify.min_density = thr as f64;
+    t.cfg_mut().densify.min_density = thr as f64;
     let plan = t.densify().unwrap();
     assert_eq!(plan.pruned, below(&now, thr), "pruned by a fresh forward");
     // A threshold above every density would empty the model: an error, the model unchanged.
     let n = t.model().len();
-    t.cfg.densify.min_density = 1e9;
+    t.cfg_mut().densify.min_density = 1e9;
     let err = t.densify().expect_err("pruning every Gaussian is an error").to_string();
     assert!(err.contains("prune all") && err.contains("min_density"), "{err}");
     assert_eq!(t.model().len(), n);
@@ -514,7 +514,7 @@ impl Monitor for StopInMember {
         self.trainings += 1;
     }
     fn stepped(&mut self, trainer: &Trainer, _: &[StepLog]) {
-        self.iteration = trainer.iteration;
+        self.iteration = trainer.iteration();
     }
     fn should_stop(&self) -> bool {
         self.trainings == 2 && self.iteration == self.at
@@ -593,7 +593,7 @@ fn no_ground_truth_steers_the_method() {
     let mut outputs = Vec::new();
     for (c, name) in [(case, "with-gt"), (&blind, "without-gt")] {
         let mut trainer = Trainer::new(c, tiny_config(30), Device::ndarray().autodiff()).unwrap();
-        while trainer.iteration < 30 {
+        while trainer.iteration() < 30 {
             trainer.step().unwrap();
         }
         trainer.flush_logs().unwrap();
@@ -601,7 +601,7 @@ fn no_ground_truth_steers_the_method() {
         let summary = write_outputs(&dir, c, &trainer, None).unwrap();
         // The working box comes from the views and the prior, yet holds the whole tree: it is
         // within a few scan steps of the case's box (the complete tree's box + 1 mm).
-        let (inputs, case_box) = (trainer.working_box, c.file.volume.bounds());
+        let (inputs, case_box) = (trainer.working_box(), c.file.volume.bounds());
         for a in 0..3 {
             assert!(
                 (inputs.min_mm[a] - case_box.min_mm[a]).abs() < 3.0
@@ -630,7 +630,7 @@ fn no_ground_truth_steers_the_method() {
             assert!(s.seeded > 0.0, "some missing vessel is seeded: {s:?}");
             assert!((0.0..=1.0).contains(&s.on_missing) && (0.0..=1.0).contains(&s.ghosts), "{s:?}");
         }
-        outputs.push((summary, std::fs::read(dir.join("mesh.obj")).unwrap(), trainer.history.clone()));
+        outputs.push((summary, std::fs::read(dir.join("mesh.obj")).unwrap(), trainer.history().to_vec()));
     }
     for (a, b) in outputs[0].2.iter().zip(&outputs[1].2) {
         assert_eq!(a.loss, b.loss, "iteration {}: losses differ", a.iteration);

@@ -37,7 +37,7 @@ fn a_quick_training_step_launches_few_kernels_and_reads_nothing_back() {
     let overrides = ["init.n1=1500", "init.n2=1200", "loss.pa_start=0", "loss.fn_start=0"].map(String::from);
     let cfg = Config::from_toml_str(QUICK_TOML, "configs/quick.toml", &overrides).unwrap();
     let mut trainer = Trainer::new(&case, cfg, Device::wgpu(DeviceKind::DefaultDevice).autodiff()).unwrap();
-    trainer.log_every = 1000;
+    trainer.set_log_every(1000);
     for _ in 0..2 {
         trainer.step().unwrap();
     }
@@ -58,5 +58,5 @@ fn a_quick_training_step_launches_few_kernels_and_reads_nothing_back() {
     // The logging read: one for all the steps since the last.
     trainer.flush_logs().unwrap();
     assert_eq!(Transfers::now().since(before).reads, 1, "one read for the pending logs");
-    assert_eq!(trainer.history.len(), 2 + steps, "every step logged");
+    assert_eq!(trainer.history().len(), 2 + steps, "every step logged");
 }

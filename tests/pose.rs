@@ -131,7 +131,7 @@ fn joint_refinement_on_a_perturbed_synthetic_case() {
     .into();
     let config = Config::from_toml_str(text, "configs/quick.toml", &overrides).unwrap();
     let mut trainer = Trainer::new(&case, config, Device::ndarray().autodiff()).expect("trainer");
-    while trainer.iteration < iterations {
+    while trainer.iteration() < iterations {
         trainer.step().expect("step");
     }
     let out = dir.join("run");

@@ -95,25 +95,25 @@ impl Monitor for Terminal {
     fn started(&mut self, trainer: &Trainer, cfg: &Config) {
         eprintln!(
             "{} views of {}×{} px, {} Gaussians ({} on the prior, {} from the images), {} iterations",
-            trainer.views.len(),
-            trainer.views.image_size().0,
-            trainer.views.image_size().1,
+            trainer.views().len(),
+            trainer.views().image_size().0,
+            trainer.views().image_size().1,
             trainer.model().len(),
-            trainer.n1,
-            trainer.n2,
+            trainer.seed_counts().0,
+            trainer.seed_counts().1,
             cfg.run.iterations
         );
         self.iterations = cfg.run.iterations;
         self.pb.finish();
         self.pb = bar(cfg.run.iterations as u64, "complete");
-        self.pb.set_position(trainer.iteration as u64);
-        self.first = trainer.iteration;
+        self.pb.set_position(trainer.iteration() as u64);
+        self.first = trainer.iteration();
         self.began = Instant::now();
     }
 
     fn stepped(&mut self, trainer: &Trainer, logged: &[StepLog]) {
-        self.pb.set_position(trainer.iteration as u64);
-        let rate = (trainer.iteration - self.first) as f64 / self.began.elapsed().as_secs_f64().max(1e-9);
+        self.pb.set_position(trainer.iteration() as u64);
+        let rate = (trainer.iteration() - self.first) as f64 / self.began.elapsed().as_secs_f64().max(1e-9);
         let line = |log: &StepLog| {
             format!(
                 "loss {:.4} (L1 {:.4}, SSIM {:.3}, FN {:.4}, PA {:.4}) {} G, {:.1} it/s",

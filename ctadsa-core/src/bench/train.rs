@@ -107,8 +107,8 @@ pub fn bench_train(
     let densify_plan = trainer.densify()?;
     let densify_s = t_dens.elapsed().as_secs_f64();
     let views_per_step = match cfg.run.views_per_step {
-        0 => trainer.views.len(),
-        k => k.min(trainer.views.len()),
+        0 => trainer.views().len(),
+        k => k.min(trainer.views().len()),
     };
     Ok(TrainBenchReport {
         gaussians: trainer.model().len(),

@@ -98,14 +98,14 @@ pub struct MemberSummary {
 
 /// The density field on a grid over the working box.
 pub fn density_volume(trainer: &Trainer) -> Result<Volume<f32>> {
-    let voxel = if trainer.cfg.output.voxel_mm > 0.0 { trainer.cfg.output.voxel_mm } else { trainer.voxel_mm };
-    density_on(trainer, Grid::covering(&trainer.working_box, voxel)?)
+    let voxel = if trainer.cfg().output.voxel_mm > 0.0 { trainer.cfg().output.voxel_mm } else { trainer.voxel_mm() };
+    density_on(trainer, Grid::covering(trainer.working_box(), voxel)?)
 }
 
 /// The density field of `trainer`'s Gaussians on `grid`.
 fn density_on(trainer: &Trainer, grid: Grid) -> Result<Volume<f32>> {
     let m = trainer.model().valid();
-    let vol = ctadsa_render::voxelize(&m.gaussians(), &grid.to_render_grid()?, &trainer.settings)?;
+    let vol = ctadsa_render::voxelize(&m.gaussians(), &grid.to_render_grid()?, trainer.settings())?;
     Ok(Volume { grid, index_to_world: grid.index_to_world(), data: host_vec(vol) })
 }
 
@@ -130,12 +130,12 @@ pub fn mc_level(volume: &Volume<f32>, level: f64, relative: bool) -> f64 {
 /// `[target | render | |difference|]` of every view, one PNG per view, magnified by an integer
 /// factor (nearest neighbour) so that each panel is at least 256 pixels wide.
 fn write_renders(dir: &Path, case: &Case, trainer: &Trainer, renders: &[Vec<f32>]) -> Result<()> {
-    let names: Vec<String> = if trainer.cfg.run.views.is_empty() {
+    let names: Vec<String> = if trainer.cfg().run.views.is_empty() {
         case.file.views.iter().map(|v| v.name.clone()).collect()
     } else {
-        trainer.cfg.run.views.iter().map(|&i| case.file.views[i].name.clone()).collect()
+        trainer.cfg().run.views.iter().map(|&i| case.file.views[i].name.clone()).collect()
     };
-    for ((name, target), render) in names.iter().zip(&trainer.images).zip(renders) {
+    for ((name, target), render) in names.iter().zip(trainer.images()).zip(renders) {
         let (w, h) = (target.width as usize, target.height as usize);
         let max = target.max().max(render.iter().copied().fold(0.0, f32::max)).max(1e-12);
         let mut rgb = vec![255u8; 3 * w * 3 * h];
@@ -180,8 +180,11 @@ fn write_poses(dir: &Path, case: &Case, trainer: &Trainer, prior: Option<&TriMes
     let Some(learned) = trainer.pose_corrections() else {
         return Ok(None);
     };
-    let indices: Vec<usize> =
-        if trainer.cfg.run.views.is_empty() { (0..case.views.len()).collect() } else { trainer.cfg.run.views.clone() };
+    let indices: Vec<usize> = if trainer.cfg().run.views.is_empty() {
+        (0..case.views.len()).collect()
+    } else {
+        trainer.cfg().run.views.clone()
+    };
     let nominal: Vec<(usize, ConeBeamView)> = indices.iter().map(|&i| (i, case.views.views()[i])).collect();
     let mut entries = Vec::new();
     for ((i, view), c) in nominal.iter().zip(&learned) {
@@ -228,7 +231,7 @@ fn write_poses(dir: &Path, case: &Case, trainer: &Trainer, prior: Option<&TriMes
 /// and what comes from them are of the mean density ([`completion_density`]), the Gaussians
 /// and the renders the run's own.
 pub fn write_outputs(dir: &Path, case: &Case, trainer: &Trainer, member: Option<&Trainer>) -> Result<RunSummary> {
-    let cfg = &trainer.cfg;
+    let cfg = trainer.cfg();
     write_file(&dir.join("config.toml"), cfg.to_toml().as_bytes())?;
     let gaussians = write_gaussians(dir, trainer)?;
     let volume = completion_density(trainer, member)?;
@@ -242,7 +245,7 @@ pub fn write_outputs(dir: &Path, case: &Case, trainer: &Trainer, member: Option<
         &surface,
         prior.as_ref(),
         &cfg.output,
-        trainer.views.views(),
+        trainer.views().views(),
         truth.as_ref(),
     )?;
     let trusted;
@@ -255,7 +258,7 @@ pub fn write_outputs(dir: &Path, case: &Case, trainer: &Trainer, member: Option<
     };
     let renders = trainer.render_all()?;
     write_renders(dir, case, trainer, &renders)?;
-    write_loss(dir, &trainer.history)?;
+    write_loss(dir, trainer.history())?;
     write_mesh_pictures(dir, mesh, prior.as_ref())?;
     // Metrics.
     let options = EvalOptions { samples: cfg.output.metric_samples, ..EvalOptions::default() };
@@ -268,23 +271,23 @@ pub fn write_outputs(dir: &Path, case: &Case, trainer: &Trainer, member: Option<
     let spread = trainer.density_spread();
     let summary = RunSummary {
         case_dir: case.dir.display().to_string(),
-        iterations: trainer.iteration,
+        iterations: trainer.iteration(),
         gaussians,
-        n1: trainer.n1,
-        n2: trainer.n2,
+        n1: trainer.seed_counts().0,
+        n2: trainer.seed_counts().1,
         mc_level: surface.level,
         level_scores: surface.level_scores,
         faint_level: surface.faint_level,
         mesh_triangles: mesh.faces.len(),
         islands_dropped: surface.islands_dropped,
-        final_loss: trainer.history.last().map_or(f64::NAN, |s| s.loss),
+        final_loss: trainer.history().last().map_or(f64::NAN, |s| s.loss),
         field_densities: spread,
         field_constant: spread.is_some_and(|s| s.is_constant()),
-        training_time: TrainingTime::of(&trainer.history),
+        training_time: TrainingTime::of(trainer.history()),
         prior_only_member: member.map(|m| MemberSummary {
             gaussians: m.model().len(),
-            final_loss: m.history.last().map_or(f64::NAN, |s| s.loss),
-            training_time: TrainingTime::of(&m.history),
+            final_loss: m.history().last().map_or(f64::NAN, |s| s.loss),
+            training_time: TrainingTime::of(m.history()),
         }),
         metrics: scored.as_ref().map(|r| r.scores),
         coverage: scored.as_ref().map(|r| r.coverage),
@@ -348,11 +351,11 @@ fn extract_completed_surface(
     volume: &Volume<f32>,
     prior: Option<&TriMesh>,
 ) -> Result<CompletedSurface> {
-    let out = &trainer.cfg.output;
+    let out = &trainer.cfg().output;
     let solid = prior.filter(|_| out.keep_prior).map(|p| prior_solid(p, volume));
     let level_scores = if out.level_from_views {
-        let threshold = out.level_mask_threshold_for(trainer.views.views().len(), trainer.cfg.init.mask_threshold);
-        score_levels(volume, trainer.views.views(), &trainer.images, threshold, solid.as_ref())
+        let threshold = out.level_mask_threshold_for(trainer.views().views().len(), trainer.cfg().init.mask_threshold);
+        score_levels(volume, trainer.views().views(), trainer.images(), threshold, solid.as_ref())
     } else {
         Vec::new()
     };
@@ -362,7 +365,7 @@ fn extract_completed_surface(
     };
     let faint = (out.faint_mask_threshold > 0.0 && out.level_from_views).then(|| {
         let scores =
-            score_levels(volume, trainer.views.views(), &trainer.images, out.faint_mask_threshold, solid.as_ref());
+            score_levels(volume, trainer.views().views(), trainer.images(), out.faint_mask_threshold, solid.as_ref());
         let low = best_level(&scores).map_or(level, |b| b.level.min(level));
         let radius = (out.faint_radius_mm / volume.grid.spacing_mm[0]).round() as usize;
         (low, faint_level_field(volume, level, low, out.faint_fraction, radius))

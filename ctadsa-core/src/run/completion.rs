@@ -38,7 +38,7 @@ pub enum Outcome {
 pub trait Monitor {
     /// A line worth telling the user (which checkpoint is resumed, which one is unusable).
     fn note(&mut self, _line: &str) {}
-    /// Training is about to start (or continue) at `trainer.iteration`.
+    /// Training is about to start (or continue) at `trainer.iteration()`.
     fn started(&mut self, _trainer: &Trainer, _cfg: &Config) {}
     /// One step is done; `logged`: the steps whose loss values were read back since the last
     /// call, oldest first (every `Trainer::log_every` steps, and at checkpoints).
@@ -189,7 +189,7 @@ pub fn run_completion(
     };
     let summary = write_outputs(out, case, &trainer, member.as_ref())?;
     if let Some(s) = summary.field_densities.filter(|_| summary.field_constant && !warned) {
-        monitor.note(&collapse_warning(trainer.iteration, s.p50));
+        monitor.note(&collapse_warning(trainer.iteration(), s.p50));
     }
     write_report(out)?;
     Ok(Outcome::Finished(Box::new(summary)))
@@ -235,12 +235,12 @@ fn train(mut trainer: Trainer, cfg: &Config, out: &Path, monitor: &mut dyn Monit
     monitor.started(&trainer, cfg);
     let _phase = TrainingPhase::start();
     let mut warned = false;
-    while trainer.iteration < cfg.run.iterations {
+    while trainer.iteration() < cfg.run.iterations {
         trainer.step()?;
         let logged = trainer.new_logs();
         monitor.stepped(&trainer, &logged);
         let every = cfg.run.checkpoint_every;
-        if every > 0 && trainer.iteration.is_multiple_of(every) && trainer.iteration < cfg.run.iterations {
+        if every > 0 && trainer.iteration().is_multiple_of(every) && trainer.iteration() < cfg.run.iterations {
             trainer.save_checkpoint(&ck_dir)?;
             warn_if_constant(&trainer, &mut warned, monitor);
         }
@@ -259,12 +259,12 @@ fn train(mut trainer: Trainer, cfg: &Config, out: &Path, monitor: &mut dyn Monit
 /// Tells the user, once per run, when the trained field gives every Gaussian the same density
 /// (at periodic checkpoints; the end of the run reads it from the summary).
 fn warn_if_constant(trainer: &Trainer, warned: &mut bool, monitor: &mut dyn Monitor) {
-    if *warned || trainer.iteration == 0 {
+    if *warned || trainer.iteration() == 0 {
         return;
     }
     if let Some(s) = trainer.density_spread().filter(|s| s.is_constant()) {
         *warned = true;
-        monitor.note(&collapse_warning(trainer.iteration, s.p50));
+        monitor.note(&collapse_warning(trainer.iteration(), s.p50));
     }
 }
 
