@@ -18,6 +18,7 @@ use crate::eval::metrics::SurfaceScores;
 use crate::output::export::RunSummary;
 use crate::output::plot::{PALETTE, Series, line_plot};
 use crate::run::completion::{Monitor, Outcome, Start, run_completion};
+use crate::run::results::{configurations_table, mean_std, priors_of, results_csv, results_table, view_counts};
 
 /// One method (row of the paper's tables): a config file and overrides.
 #[derive(Debug, Clone, Deserialize)]
@@ -412,7 +413,11 @@ impl Experiment {
         let mut results = self.finished();
         results.sort_by(|a, b| (&a.case, &a.prior, a.views, &a.method).cmp(&(&b.case, &b.prior, b.views, &b.method)));
         write_file(&self.out.join("results.csv"), results_csv(&results).as_bytes())?;
-        let md = results_table(&results, &self.matrix);
+        let md = format!(
+            "{}\nPer method and view count, with the median wall-clock of a cell:\n\n{}",
+            results_table(&results, &self.matrix),
+            configurations_table(&results)
+        );
         write_file(&self.out.join("table.md"), md.as_bytes())?;
         self.write_fig3(&results)?;
         Ok(md)
@@ -452,115 +457,11 @@ impl Experiment {
     }
 }
 
-fn mean_std(v: &[f64]) -> Option<(f64, f64)> {
-    if v.is_empty() {
-        return None;
-    }
-    let m = v.iter().sum::<f64>() / v.len() as f64;
-    let var = v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / v.len() as f64;
-    Some((m, var.sqrt()))
-}
-
-/// Mean ± std of a metric over the results; cells where it is undefined (e.g. no point in the
-/// ROI) are counted and shown.
-fn cell_text(rs: &[&CellResult], key: &str) -> String {
-    let vals: Vec<f64> = rs.iter().filter_map(|r| r.metrics.get(key).copied().flatten()).collect();
-    let missing = rs.len() - vals.len();
-    let core = match mean_std(&vals) {
-        Some((m, s)) => format!("{m:.2} ± {s:.2}"),
-        None => "—".into(),
-    };
-    if missing > 0 { format!("{core} ({missing}× ∞)") } else { core }
-}
-
-fn view_counts(matrix: &Matrix) -> Vec<usize> {
-    let mut v: Vec<usize> = matrix.views.iter().map(Vec::len).collect();
-    v.dedup();
-    v
-}
-
-fn priors_of(results: &[CellResult]) -> Vec<String> {
-    results.iter().map(|r| r.prior.clone()).collect::<BTreeSet<_>>().into_iter().collect()
-}
-
-/// One CSV row per cell (undefined metrics as `inf`).
-/// `field` as one CSV field (RFC 4180): quoted, with quotes doubled, when it holds a comma, a
-/// quote or a line break.
-fn csv_field(field: &str) -> String {
-    if field.contains([',', '"', '\n', '\r']) {
-        format!("\"{}\"", field.replace('"', "\"\""))
-    } else {
-        field.to_string()
-    }
-}
-
 fn remove_file_if_present(path: &Path) -> Result<()> {
     match std::fs::remove_file(path) {
         Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(CoreError::io(path, e)),
         _ => Ok(()),
     }
-}
-
-pub fn results_csv(results: &[CellResult]) -> String {
-    let keys: Vec<String> = results.first().map(|r| r.metrics.keys().cloned().collect()).unwrap_or_default();
-    let mut csv =
-        format!("case,method,views,view_list,prior,prior_threshold_mm,seconds,gaussians,{}\n", keys.join(","));
-    for r in results {
-        let vals: Vec<String> = keys
-            .iter()
-            .map(|k| r.metrics.get(k).copied().flatten().map_or("inf".into(), |v| format!("{v:.4}")))
-            .collect();
-        csv += &format!(
-            "{},{},{},{},{},{},{:.1},{},{}\n",
-            csv_field(&r.case),
-            csv_field(&r.method),
-            r.views,
-            csv_field(&r.view_list),
-            csv_field(&r.prior),
-            r.prior_threshold_mm.map_or(String::new(), |v| format!("{v}")),
-            r.seconds,
-            r.gaussians,
-            vals.join(",")
-        );
-    }
-    csv
-}
-
-/// Markdown: rows = method (× prior), columns = views × (CD_ROI, HD95_ROI, CD, HD95).
-pub fn results_table(results: &[CellResult], matrix: &Matrix) -> String {
-    let cases: BTreeSet<&str> = results.iter().map(|r| r.case.as_str()).collect();
-    let mut md = format!(
-        "Mean ± std over {} case(s). CD = sum of the two one-sided mean distances (the reference's \
-         convention), HD95 = 95th-percentile Hausdorff, in mm; ROI = the vessels missing from the prior.\n\n",
-        cases.len()
-    );
-    let counts = view_counts(matrix);
-    md += "| method | prior |";
-    for v in &counts {
-        md += &format!(" CD_ROI ({v} views) | HD95_ROI ({v} views) | CD ({v} views) | HD95 ({v} views) |");
-    }
-    md += "\n|---|---|";
-    for _ in &counts {
-        md += "---:|---:|---:|---:|";
-    }
-    md += "\n";
-    for m in &matrix.methods {
-        for p in &priors_of(results) {
-            let sel: Vec<&CellResult> = results.iter().filter(|r| r.method == m.name && &r.prior == p).collect();
-            if sel.is_empty() {
-                continue;
-            }
-            md += &format!("| {} | {} |", m.name, p);
-            for v in &counts {
-                let s: Vec<&CellResult> = sel.iter().copied().filter(|r| r.views == *v).collect();
-                for key in ["roi_cd_sum_mm", "roi_hd95_mm", "cd_sum_mm", "hd95_mm"] {
-                    md += &format!(" {} |", cell_text(&s, key));
-                }
-            }
-            md += "\n";
-        }
-    }
-    md
 }
 
 #[cfg(test)]
@@ -580,29 +481,6 @@ mod tests {
             metrics: BTreeMap::from([("roi_cd_sum_mm".to_string(), cd_roi)]),
             config_hash: None,
         }
-    }
-
-    #[test]
-    fn the_table_gives_mean_and_spread_over_cases_and_counts_undefined_cells() {
-        let matrix = Matrix {
-            views: vec![vec![0, 1]],
-            priors: vec![],
-            set: vec![],
-            methods: vec![Method { name: "full".into(), config: "x.toml".into(), set: vec![] }],
-        };
-        let rs = [result("a", "full", 2, Some(2.0)), result("b", "full", 2, Some(4.0)), result("c", "full", 2, None)];
-        let md = results_table(&rs, &matrix);
-        assert!(md.contains("| full | case | 3.00 ± 1.00 (1× ∞) |"), "{md}");
-        let csv = results_csv(&rs);
-        assert_eq!(csv.lines().count(), 4, "{csv}");
-        assert!(csv.lines().nth(3).unwrap().ends_with(",inf"), "{csv}");
-    }
-
-    #[test]
-    fn csv_fields_with_commas_or_quotes_are_quoted() {
-        let rs = [result("case, left", "full \"x\"", 2, Some(2.0))];
-        let line = results_csv(&rs).lines().nth(1).unwrap().to_string();
-        assert!(line.starts_with("\"case, left\",\"full \"\"x\"\"\",2,\"0,1\",case,"), "{line}");
     }
 
     /// A matrix with two methods, views and cases of one name is refused (they would share cell

@@ -4,3 +4,4 @@
 
 pub mod completion;
 pub mod experiment;
+pub mod results;
