@@ -202,14 +202,14 @@ pub fn bench_train(
         None => {
             let d = std::env::temp_dir().join(format!("ctadsa-bench-case-{}", std::process::id()));
             eprintln!("synthesising the demo case into {}", d.display());
-            ctadsa_core::data::synth::synthesize(&crate::complete::demo_case_config(), &d, &mut |_| {})?;
+            ctadsa_core::data::synth::synthesize(&ctadsa_core::data::synth::SynthConfig::demo(), &d, &mut |_| {})?;
             d
         }
     };
     let case = Case::load(&case_dir)?;
     let cfg = match &config {
         Some(p) => Config::load(Some(p), overrides)?,
-        None => Config::from_toml_str(crate::complete::QUICK_TOML, "configs/quick.toml", overrides)?,
+        None => Config::quick(overrides)?,
     };
     let device = backend.device()?.autodiff();
     let r = ctadsa_core::bench::bench_train(&case, cfg.clone(), device, settings)?;

@@ -4,16 +4,13 @@
 
 use std::path::Path;
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use ctadsa_core::bench::{TrainBenchReport, TrainBenchSettings, bench_train, peak_rss_mib, reset_peak_rss};
 use ctadsa_core::config::Config;
 use ctadsa_core::data::case::Case;
 use ctadsa_core::data::synth::{SynthConfig, synthesize};
 
 use crate::backend::BackendKind;
-
-/// The paper configuration, built in so that the suite runs from any folder.
-const PAPER_TOML: &str = include_str!("../../configs/paper.toml");
 
 fn cpu_model() -> String {
     std::fs::read_to_string("/proc/cpuinfo")
@@ -26,19 +23,11 @@ fn cpu_model() -> String {
         .unwrap_or_else(|| "unknown CPU".into())
 }
 
-/// One row: `steps` timed steps of `config` (or the built-in quick one) with `sets` on `case`.
-fn bench_row(
-    case: &Path,
-    config: Option<&Path>,
-    sets: &[&str],
-    steps: usize,
-    backend: BackendKind,
-) -> Result<TrainBenchReport> {
+/// One row: `steps` timed steps of the built-in paper (or quick) configuration with `sets` on
+/// `case`.
+fn bench_row(case: &Path, paper: bool, sets: &[&str], steps: usize, backend: BackendKind) -> Result<TrainBenchReport> {
     let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
-    let cfg = match config {
-        Some(p) => Config::load(Some(p), &sets)?,
-        None => Config::from_toml_str(crate::complete::QUICK_TOML, "configs/quick.toml", &sets)?,
-    };
+    let cfg = if paper { Config::paper(&sets)? } else { Config::quick(&sets)? };
     let case = Case::load(case)?;
     let device = backend.device()?.autodiff();
     Ok(bench_train(&case, cfg, device, TrainBenchSettings { steps, device_timed_steps: 0 })?)
@@ -48,19 +37,17 @@ pub fn train_suite(steps: usize, threads: usize, backend: BackendKind) -> Result
     let dir = std::env::temp_dir().join(format!("ctadsa-bench-suite-{}", std::process::id()));
     let (demo, wide) = (dir.join("demo-case"), dir.join("case-512"));
     eprintln!("synthesising the demo case and a 512² variant into {}", dir.display());
-    let demo_cfg = crate::complete::demo_case_config();
+    let demo_cfg = SynthConfig::demo();
     synthesize(&demo_cfg, &demo, &mut |_| {})?;
     let wide_cfg = SynthConfig { name: "demo-procedural-512".into(), detector_px: Some(512), binning: 1, ..demo_cfg };
     synthesize(&wide_cfg, &wide, &mut |_| {})?;
-    let paper = dir.join("paper.toml");
-    std::fs::write(&paper, PAPER_TOML).with_context(|| format!("cannot write {}", paper.display()))?;
-    let rows: [(&str, &Path, Option<&Path>, Vec<&str>); 4] = [
-        ("quick (demo case: 3 views of 128², all per step, 33k Gaussians, 2^14)", &demo, None, vec![]),
-        ("paper schedule: 1 view of 512² per step, 60k Gaussians, 2^19", &wide, Some(&paper), vec![]),
-        ("paper schedule, the reference's table 2^20", &wide, Some(&paper), vec!["field.encoding.log2_table=20"]),
+    let rows: [(&str, &Path, bool, Vec<&str>); 4] = [
+        ("quick (demo case: 3 views of 128², all per step, 33k Gaussians, 2^14)", &demo, false, vec![]),
+        ("paper schedule: 1 view of 512² per step, 60k Gaussians, 2^19", &wide, true, vec![]),
+        ("paper schedule, the reference's table 2^20", &wide, true, vec!["field.encoding.log2_table=20"]),
         // A paper run densifies without a cap: a BraVa tree grows to ≈ 100k Gaussians by
         // iteration 9,000 and keeps them to the end.
-        ("paper schedule, grown to 100k Gaussians, 2^19", &wide, Some(&paper), vec!["init.n1=50000", "init.n2=50000"]),
+        ("paper schedule, grown to 100k Gaussians, 2^19", &wide, true, vec!["init.n1=50000", "init.n2=50000"]),
     ];
     let mut table = format!(
         "{backend:?}, {} CPU threads on {}; {steps} timed steps per row after 2 warm-up steps (ms; densify: one call)\n\n\
@@ -70,10 +57,10 @@ pub fn train_suite(steps: usize, threads: usize, backend: BackendKind) -> Result
         cpu_model()
     );
     let per_row_memory = reset_peak_rss();
-    for (name, case, config, sets) in rows {
+    for (name, case, paper, sets) in rows {
         eprintln!("timing: {name}");
         reset_peak_rss();
-        let r = bench_row(case, config, &sets, steps, backend)?;
+        let r = bench_row(case, paper, &sets, steps, backend)?;
         let s = r.stages;
         let cells: Vec<String> =
             [s.field, s.render, s.losses, s.backward, s.optimizer, r.per_step_s, r.densify_s, r.init_s]

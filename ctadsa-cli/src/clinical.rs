@@ -6,9 +6,10 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use ctadsa_core::data::case::Case;
 use ctadsa_core::data::clinical::dsa::Subtraction;
-use ctadsa_core::data::clinical::import::{DsaOptions, DsaView, dsa_view, write_dsa_case};
-use ctadsa_core::data::clinical::prior::{LabelPriorOptions, Visibility, prior_from_labels};
-use ctadsa_core::data::clinical::xa::read_xa_run;
+use ctadsa_core::data::clinical::import::{DsaOptions, DsaView, dsa_view, view_name, write_dsa_case};
+use ctadsa_core::data::clinical::prior::{LabelPriorOptions, Visibility, centred_prior_from_labels, prior_from_labels};
+use ctadsa_core::data::clinical::simulate::simulated_case_runs;
+use ctadsa_core::data::clinical::xa::{read_xa_run, write_xa_run};
 use ctadsa_core::data::mesh::TriMesh;
 use ctadsa_core::data::mesh::io::{read_mesh, write_mesh};
 use ctadsa_render::ConeBeamView;
@@ -45,24 +46,18 @@ fn visibility(text: &str) -> Result<Visibility> {
 
 /// Builds the prior mesh from a label volume as the options say.
 fn label_prior(labels: &Path, a: &LabelArgs, views: &[ConeBeamView]) -> Result<(TriMesh, String)> {
-    let mut shift = match &a.prior_shift_mm {
+    let shift = match &a.prior_shift_mm {
         Some(v) if v.len() == 3 => [v[0], v[1], v[2]],
         Some(v) => bail!("--prior-shift-mm needs 3 values, got {}", v.len()),
         None => [0.0; 3],
     };
-    if a.centre_prior {
-        // Centre from the uncut surface, then build again with the shift and the visibility cut.
-        let o = LabelPriorOptions {
-            labels: a.label_ids.clone(),
-            min_island_mm2: a.min_island_mm2,
-            translation_mm: [0.0; 3],
-        };
-        let p = prior_from_labels(labels, &o, &[], Visibility::All)?;
-        let (lo, hi) = p.mesh.bounds_mm().context("empty prior")?;
-        shift = (-(lo + hi) * 0.5).to_array();
-    }
     let o = LabelPriorOptions { labels: a.label_ids.clone(), min_island_mm2: a.min_island_mm2, translation_mm: shift };
-    let p = prior_from_labels(labels, &o, views, visibility(&a.visible)?)?;
+    let visible = visibility(&a.visible)?;
+    let (p, shift) = if a.centre_prior {
+        centred_prior_from_labels(labels, &o, views, visible)?
+    } else {
+        (prior_from_labels(labels, &o, views, visible)?, shift)
+    };
     eprintln!(
         "prior from {}: {} voxels, {} triangles, {} islands < {} mm² dropped, {} triangles not visible; shift {:?} mm",
         labels.display(),
@@ -151,9 +146,7 @@ pub fn import_dsa(args: ImportDsaArgs) -> Result<()> {
     let mut views: Vec<DsaView> = Vec::new();
     for (i, path) in args.runs.iter().enumerate() {
         let run = read_xa_run(path)?;
-        let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or("view");
-        let name = format!("{i}-{}", stem.replace(|c: char| !c.is_ascii_alphanumeric() && c != '-', "_"));
-        let v = dsa_view(&run, &name, &options)?;
+        let v = dsa_view(&run, &view_name(i, path), &options)?;
         eprintln!(
             "{}: {} frames of {} × {} px, primary {:.1}°, secondary {:.1}°, DSD {} mm, DSO {} mm; masks {:?}, MIP {}–{}",
             path.display(),
@@ -246,41 +239,16 @@ pub struct ExportDicomArgs {
 
 /// Writes simulated DSA runs (mask + 7 bolus frames) of a case's views as DICOM.
 pub fn export_dicom(args: ExportDicomArgs) -> Result<()> {
-    use ctadsa_core::data::case::ViewGeometry;
-    use ctadsa_core::data::clinical::simulate::simulated_run;
-    use ctadsa_core::data::clinical::xa::write_xa_run;
-    use ctadsa_render::TigreGeometry;
     let case = Case::load(&args.case)?;
-    let max = case.images.iter().map(|i| i.max()).fold(0.0f32, f32::max);
-    anyhow::ensure!(max > 0.0, "{}: every image is 0", args.case.display());
-    for (i, (entry, img)) in case.file.views.iter().zip(&case.images).enumerate() {
-        let ViewGeometry::Tigre { dsd_mm, dso_mm, detector_px, pixel_mm, offset_mm, primary_deg, secondary_deg } =
-            entry.geometry
-        else {
-            bail!("view `{}` has matrix geometry; DICOM positioner tags need C-arm angles", entry.name);
-        };
-        anyhow::ensure!(
-            offset_mm == [0.0, 0.0],
-            "view `{}`: detector offsets cannot be written as DICOM tags",
-            entry.name
-        );
-        let g = TigreGeometry { dsd_mm, dso_mm, detector_px, pixel_mm, offset_mm, primary_deg, secondary_deg };
-        let mirror = args.mirror_first && i == 0;
-        let mut spec = simulated_run(img, &g, args.peak_attenuation / max, mirror);
-        if mirror {
-            spec.patient_orientation = Some(["L".into(), "F".into()]);
-        }
-        // One study per case, one series per view.
-        spec.study_key = case.file.name.clone();
-        spec.series_number = i as u32 + 1;
-        let path = args.out.join(format!("{}.dcm", entry.name));
+    for (name, spec) in simulated_case_runs(&case, args.peak_attenuation, args.mirror_first)? {
+        let path = args.out.join(format!("{name}.dcm"));
         write_xa_run(&path, &spec)?;
         println!(
             "{}: {} frames, primary {:.1}°, secondary {:.1}°",
             path.display(),
             spec.frames.len(),
             spec.primary_deg.unwrap_or(0.0),
-            secondary_deg
+            spec.secondary_deg.unwrap_or(0.0)
         );
     }
     Ok(())

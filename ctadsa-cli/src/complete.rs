@@ -10,8 +10,7 @@ use anyhow::{Result, bail};
 use clap::Args;
 use ctadsa_core::config::Config;
 use ctadsa_core::data::case::Case;
-use ctadsa_core::data::synth::{Anatomy, SynthConfig, synthesize};
-use ctadsa_core::data::tree::procedural::ProceduralTree;
+use ctadsa_core::data::synth::{SynthConfig, synthesize};
 use ctadsa_core::method::train::{StepLog, Trainer};
 use ctadsa_core::output::export::RunSummary;
 use ctadsa_core::run::completion::{self, Monitor, Outcome, Start};
@@ -19,9 +18,6 @@ use indicatif::ProgressBar;
 
 use crate::backend::BackendKind;
 use crate::progress::bar;
-
-/// The quick configuration, built in so that `ctadsa demo` works from any folder.
-pub const QUICK_TOML: &str = include_str!("../../configs/quick.toml");
 
 #[derive(Args)]
 pub struct CompleteArgs {
@@ -274,26 +270,13 @@ pub struct DemoArgs {
     overrides: Vec<String>,
 }
 
-/// The demo's case: the built-in procedural tree, three views (AP, LAT, oblique) on a cropped
-/// reference detector (256² of 0.5 mm, binned to 128² of 1 mm), prior = vessels ≥ 1.5 mm.
-pub fn demo_case_config() -> SynthConfig {
-    SynthConfig {
-        name: "demo-procedural".into(),
-        anatomy: Anatomy::Procedural(ProceduralTree::default()),
-        detector_px: Some(256),
-        binning: 2,
-        voxel_mm: Some(0.35),
-        ..SynthConfig::default()
-    }
-}
-
 pub fn demo(args: DemoArgs) -> Result<()> {
     let case_dir = args.out.join("case");
     let started = Instant::now();
     eprintln!("synthesising the built-in phantom case into {}", case_dir.display());
-    synthesize(&demo_case_config(), &case_dir, &mut |_| {})?;
+    synthesize(&SynthConfig::demo(), &case_dir, &mut |_| {})?;
     let case = Case::load(&case_dir)?;
-    let cfg = Config::from_toml_str(QUICK_TOML, "configs/quick.toml", &args.overrides)?;
+    let cfg = Config::quick(&args.overrides)?;
     let out = args.out.join("run");
     match run_completion(&case, cfg, args.backend, &out, Start::Overwrite)? {
         Some(s) => {

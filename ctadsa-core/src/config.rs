@@ -545,7 +545,23 @@ fn load_table(path: &Path, depth: usize) -> Result<toml::Table> {
     }
 }
 
+/// `configs/quick.toml`, built in (the demo's and the benchmarks' configuration).
+pub const QUICK_TOML: &str = include_str!("../../configs/quick.toml");
+
+/// `configs/paper.toml`, built in.
+pub const PAPER_TOML: &str = include_str!("../../configs/paper.toml");
+
 impl Config {
+    /// The built-in quick configuration ([`QUICK_TOML`]) with `key=value` overrides.
+    pub fn quick(overrides: &[String]) -> Result<Self> {
+        Self::from_toml_str(QUICK_TOML, "configs/quick.toml", overrides)
+    }
+
+    /// The built-in paper configuration ([`PAPER_TOML`]) with `key=value` overrides.
+    pub fn paper(overrides: &[String]) -> Result<Self> {
+        Self::from_toml_str(PAPER_TOML, "configs/paper.toml", overrides)
+    }
+
     /// Reads a TOML file and applies `key=value` overrides. A file may start from another one
     /// with a top-level `base = "other.toml"` (relative to the file; chains allowed): its keys
     /// are laid over the base's, section by section.

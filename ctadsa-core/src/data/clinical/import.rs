@@ -228,6 +228,13 @@ pub fn dsa_view(run: &XaRun, name: &str, o: &DsaOptions) -> Result<DsaView> {
     Ok(DsaView { name: name.to_string(), image, geometry, mask_frames: masks, frames, curve, notes })
 }
 
+/// The case's name for the view of run number `index` read from `path`: the index and the file
+/// stem, with anything but ASCII letters, digits and `-` as `_` (a safe file name).
+pub fn view_name(index: usize, path: &Path) -> String {
+    let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or("view");
+    format!("{index}-{}", stem.replace(|c: char| !c.is_ascii_alphanumeric() && c != '-', "_"))
+}
+
 /// Writes a case folder from DSA views and a prior (mesh in world mm). The working volume is the
 /// prior's box plus `margin_mm`, or — without a prior — the cube every view sees at the
 /// isocentre.

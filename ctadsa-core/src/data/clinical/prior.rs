@@ -93,6 +93,24 @@ pub fn prior_from_labels(
     Ok(LabelPrior { mesh, voxels, islands_dropped, hidden_triangles })
 }
 
+/// [`prior_from_labels`] with the translation that puts the centre of the labels' surface
+/// (before island removal and the visibility cut) at the isocentre, instead of
+/// `options.translation_mm`; returns the prior and that translation (mm). For a CTA whose
+/// coordinates are not those of the C-arm.
+pub fn centred_prior_from_labels(
+    path: &Path,
+    options: &LabelPriorOptions,
+    views: &[ConeBeamView],
+    visibility: Visibility,
+) -> Result<(LabelPrior, [f64; 3])> {
+    let uncut = LabelPriorOptions { translation_mm: [0.0; 3], ..options.clone() };
+    let whole = prior_from_labels(path, &uncut, &[], Visibility::All)?;
+    let (lo, hi) = whole.mesh.bounds_mm().ok_or_else(|| CoreError::format(path, "the prior surface is empty"))?;
+    let shift = (-(lo + hi) * 0.5).to_array();
+    let centred = LabelPriorOptions { translation_mm: shift, ..options.clone() };
+    Ok((prior_from_labels(path, &centred, views, visibility)?, shift))
+}
+
 /// The distinct positive label values of a volume (at most 64 listed).
 pub fn present_labels(volume: &Volume<f32>) -> Vec<u32> {
     let mut set = std::collections::BTreeSet::new();

@@ -7,6 +7,8 @@ use ctadsa_render::TigreGeometry;
 use super::import::tigre_angles_from_dicom;
 use super::xa::XaRunSpec;
 use crate::data::case::images::Image;
+use crate::data::case::{Case, ViewGeometry};
+use crate::error::{CoreError, Result};
 
 /// Contrast over the run's 8 frames; frame 0 is the mask.
 pub const BOLUS: [f32; 8] = [0.0, 0.1, 0.4, 0.9, 1.0, 0.7, 0.3, 0.1];
@@ -31,6 +33,45 @@ pub fn simulated_frames(line_integral: &Image, kappa: f32, mirror: bool) -> Vec<
             f
         })
         .collect()
+}
+
+/// Simulated DSA runs of every view of a case (TIGRE geometry without detector offsets), one
+/// study per case and one series per view, with the contrast's peak attenuation
+/// `peak_attenuation` (κ × the largest line integral). `mirror_first` stores the first (frontal)
+/// run mirrored with Patient Orientation `L\F`, as a viewer facing the patient sees it. Returns
+/// `(view name, run)` pairs for [`super::xa::write_xa_run`].
+pub fn simulated_case_runs(case: &Case, peak_attenuation: f32, mirror_first: bool) -> Result<Vec<(String, XaRunSpec)>> {
+    let max = case.images.iter().map(|i| i.max()).fold(0.0f32, f32::max);
+    if !(max > 0.0) {
+        return Err(CoreError::format(&case.dir, "every image is 0: nothing to simulate"));
+    }
+    let mut runs = Vec::new();
+    for (i, (entry, img)) in case.file.views.iter().zip(&case.images).enumerate() {
+        let ViewGeometry::Tigre { dsd_mm, dso_mm, detector_px, pixel_mm, offset_mm, primary_deg, secondary_deg } =
+            entry.geometry
+        else {
+            return Err(CoreError::format(
+                &case.dir,
+                format!("view `{}` has matrix geometry; DICOM positioner tags need C-arm angles", entry.name),
+            ));
+        };
+        if offset_mm != [0.0, 0.0] {
+            return Err(CoreError::format(
+                &case.dir,
+                format!("view `{}`: detector offsets cannot be written as DICOM tags", entry.name),
+            ));
+        }
+        let g = TigreGeometry { dsd_mm, dso_mm, detector_px, pixel_mm, offset_mm, primary_deg, secondary_deg };
+        let mirror = mirror_first && i == 0;
+        let mut spec = simulated_run(img, &g, peak_attenuation / max, mirror);
+        if mirror {
+            spec.patient_orientation = Some(["L".into(), "F".into()]);
+        }
+        spec.study_key = case.file.name.clone();
+        spec.series_number = i as u32 + 1;
+        runs.push((entry.name.clone(), spec));
+    }
+    Ok(runs)
 }
 
 /// A complete run description for [`super::xa::write_xa_run`] from a view's TIGRE geometry.

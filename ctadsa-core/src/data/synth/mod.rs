@@ -176,6 +176,22 @@ impl SynthConfig {
     }
 }
 
+impl SynthConfig {
+    /// The demo's case: the built-in procedural tree, three views (AP, LAT, oblique) on a
+    /// cropped reference detector (256² of 0.5 mm, binned to 128² of 1 mm), prior = vessels
+    /// ≥ 1.5 mm.
+    pub fn demo() -> Self {
+        Self {
+            name: "demo-procedural".into(),
+            anatomy: Anatomy::Procedural(ProceduralTree::default()),
+            detector_px: Some(256),
+            binning: 2,
+            voxel_mm: Some(0.35),
+            ..Self::default()
+        }
+    }
+}
+
 impl Default for SynthConfig {
     fn default() -> Self {
         Self {
