@@ -7,10 +7,11 @@ use burn::backend::ops::FloatTensorOps;
 use burn::backend::{NdArray, TensorMetadata, tensor::FloatTensor};
 use burn::tensor::TensorData;
 
+use crate::RenderSettings;
 use crate::VoxelGrid;
 use crate::cpu::{self, HostGaussians};
 use crate::ndarray_host::with_host;
-use crate::ops::{RenderGrads, RenderSetup};
+use crate::ops::{RenderGrads, RenderSetup, XrayBackend};
 
 fn from_vec(v: Vec<f32>, shape: Vec<usize>, like: &FloatTensor<NdArray>) -> FloatTensor<NdArray> {
     NdArray::float_from_data(TensorData::new(v, shape), &like.device())
@@ -84,4 +85,40 @@ pub fn voxelize(
     let inputs = Inputs { means: &means, scales: &scales, rotations: &rotations, densities: &densities };
     let volume = inputs.with(|g| cpu::voxelize(g, grid, k_sigma));
     from_vec(volume, grid.dims.map(|d| d as usize).to_vec(), &means)
+}
+
+/// The op on the CPU backend: the kernels above.
+impl XrayBackend for NdArray {
+    fn xray_render(
+        means: FloatTensor<Self>,
+        scales: FloatTensor<Self>,
+        rotations: FloatTensor<Self>,
+        densities: FloatTensor<Self>,
+        _screen_probe: FloatTensor<Self>,
+        setup: RenderSetup,
+    ) -> FloatTensor<Self> {
+        render(means, scales, rotations, densities, &setup)
+    }
+
+    fn xray_render_backward(
+        means: FloatTensor<Self>,
+        scales: FloatTensor<Self>,
+        rotations: FloatTensor<Self>,
+        densities: FloatTensor<Self>,
+        grad_image: FloatTensor<Self>,
+        setup: RenderSetup,
+    ) -> RenderGrads<Self> {
+        render_backward(means, scales, rotations, densities, grad_image, &setup)
+    }
+
+    fn xray_voxelize(
+        means: FloatTensor<Self>,
+        scales: FloatTensor<Self>,
+        rotations: FloatTensor<Self>,
+        densities: FloatTensor<Self>,
+        grid: VoxelGrid,
+        settings: RenderSettings,
+    ) -> FloatTensor<Self> {
+        voxelize(means, scales, rotations, densities, &grid, settings.k_sigma)
+    }
 }

@@ -6,7 +6,7 @@
 
 use std::sync::Arc;
 
-use burn::backend::{Backend, ExtensionType, NdArray, backend_extension, tensor::FloatTensor};
+use burn::backend::{Backend, ExtensionType, backend_extension, tensor::FloatTensor};
 
 use crate::view_params::ViewParams;
 use crate::{F32Add, RenderSettings, VoxelGrid};
@@ -80,39 +80,4 @@ pub trait XrayBackend: Backend {
         grid: VoxelGrid,
         settings: RenderSettings,
     ) -> FloatTensor<Self>;
-}
-
-impl XrayBackend for NdArray {
-    fn xray_render(
-        means: FloatTensor<Self>,
-        scales: FloatTensor<Self>,
-        rotations: FloatTensor<Self>,
-        densities: FloatTensor<Self>,
-        _screen_probe: FloatTensor<Self>,
-        setup: RenderSetup,
-    ) -> FloatTensor<Self> {
-        crate::host_backend::render(means, scales, rotations, densities, &setup)
-    }
-
-    fn xray_render_backward(
-        means: FloatTensor<Self>,
-        scales: FloatTensor<Self>,
-        rotations: FloatTensor<Self>,
-        densities: FloatTensor<Self>,
-        grad_image: FloatTensor<Self>,
-        setup: RenderSetup,
-    ) -> RenderGrads<Self> {
-        crate::host_backend::render_backward(means, scales, rotations, densities, grad_image, &setup)
-    }
-
-    fn xray_voxelize(
-        means: FloatTensor<Self>,
-        scales: FloatTensor<Self>,
-        rotations: FloatTensor<Self>,
-        densities: FloatTensor<Self>,
-        grid: VoxelGrid,
-        settings: RenderSettings,
-    ) -> FloatTensor<Self> {
-        crate::host_backend::voxelize(means, scales, rotations, densities, &grid, settings.k_sigma)
-    }
 }

@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use burn::tensor::Device;
-use serde::{Deserialize, Serialize};
+use serde::Deserialize;
 
 use crate::config::Config;
 use crate::data::case::{Case, PriorEntry};
@@ -18,7 +18,8 @@ use crate::eval::metrics::SurfaceScores;
 use crate::output::export::RunSummary;
 use crate::output::plot::{PALETTE, Series, line_plot};
 use crate::run::completion::{Monitor, Outcome, Start, run_completion};
-use crate::run::results::{configurations_table, mean_std, priors_of, results_csv, results_table, view_counts};
+pub use crate::run::results::CellResult;
+use crate::run::results::{configurations_table, mean_std, priors_of, results_csv, results_table};
 
 /// One method (row of the paper's tables): a config file and overrides.
 #[derive(Debug, Clone, Deserialize)]
@@ -46,22 +47,16 @@ pub struct Matrix {
     pub methods: Vec<Method>,
 }
 
-/// The numbers of one finished cell (non-finite values stored as `null`).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct CellResult {
-    pub case: String,
-    pub method: String,
-    pub views: usize,
-    pub view_list: String,
-    pub prior: String,
-    pub prior_threshold_mm: Option<f64>,
-    pub seconds: f64,
-    pub gaussians: usize,
-    pub metrics: BTreeMap<String, Option<f64>>,
-    /// The cell's configuration when it ran ([`Cell::config_hash`]); a result of another
-    /// configuration (or of a version that did not record it) is not this cell's.
-    #[serde(default)]
-    pub config_hash: Option<String>,
+/// The view counts of a matrix, in its order, each once.
+fn view_counts(matrix: &Matrix) -> Vec<usize> {
+    let mut v: Vec<usize> = matrix.views.iter().map(Vec::len).collect();
+    v.dedup();
+    v
+}
+
+/// The names of a matrix's methods, in its order.
+fn method_names(matrix: &Matrix) -> Vec<String> {
+    matrix.methods.iter().map(|m| m.name.clone()).collect()
 }
 
 /// One run of the matrix.
@@ -415,7 +410,7 @@ impl Experiment {
         write_file(&self.out.join("results.csv"), results_csv(&results).as_bytes())?;
         let md = format!(
             "{}\nPer method and view count, with the median wall-clock of a cell:\n\n{}",
-            results_table(&results, &self.matrix),
+            results_table(&results, &method_names(&self.matrix), &view_counts(&self.matrix)),
             configurations_table(&results)
         );
         write_file(&self.out.join("table.md"), md.as_bytes())?;

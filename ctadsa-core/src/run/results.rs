@@ -5,8 +5,27 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 
-use super::experiment::{CellResult, Matrix};
+use serde::{Deserialize, Serialize};
+
 use crate::error::{CoreError, Result};
+
+/// The numbers of one finished cell (non-finite values stored as `null`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CellResult {
+    pub case: String,
+    pub method: String,
+    pub views: usize,
+    pub view_list: String,
+    pub prior: String,
+    pub prior_threshold_mm: Option<f64>,
+    pub seconds: f64,
+    pub gaussians: usize,
+    pub metrics: BTreeMap<String, Option<f64>>,
+    /// The cell's configuration when it ran ([`Cell::config_hash`]); a result of another
+    /// configuration (or of a version that did not record it) is not this cell's.
+    #[serde(default)]
+    pub config_hash: Option<String>,
+}
 
 /// The cell columns of `results.csv` before the metrics.
 const CELL_COLUMNS: [&str; 8] =
@@ -31,12 +50,6 @@ fn cell_text(rs: &[&CellResult], key: &str) -> String {
         None => "—".into(),
     };
     if missing > 0 { format!("{core} ({missing}× ∞)") } else { core }
-}
-
-pub(super) fn view_counts(matrix: &Matrix) -> Vec<usize> {
-    let mut v: Vec<usize> = matrix.views.iter().map(Vec::len).collect();
-    v.dedup();
-    v
 }
 
 pub(super) fn priors_of(results: &[CellResult]) -> Vec<String> {
@@ -79,15 +92,16 @@ pub fn results_csv(results: &[CellResult]) -> String {
     csv
 }
 
-/// Markdown: rows = method (× prior), columns = views × (CD_ROI, HD95_ROI, CD, HD95).
-pub fn results_table(results: &[CellResult], matrix: &Matrix) -> String {
+/// Markdown: rows = method (× prior), in the order of `methods`; columns = `view_counts` ×
+/// (CD_ROI, HD95_ROI, CD, HD95).
+pub fn results_table(results: &[CellResult], methods: &[String], view_counts: &[usize]) -> String {
     let cases: BTreeSet<&str> = results.iter().map(|r| r.case.as_str()).collect();
     let mut md = format!(
         "Mean ± std over {} case(s). CD = sum of the two one-sided mean distances (the reference's \
          convention), HD95 = 95th-percentile Hausdorff, in mm; ROI = the vessels missing from the prior.\n\n",
         cases.len()
     );
-    let counts = view_counts(matrix);
+    let counts = view_counts.to_vec();
     md += "| method | prior |";
     for v in &counts {
         md += &format!(" CD_ROI ({v} views) | HD95_ROI ({v} views) | CD ({v} views) | HD95 ({v} views) |");
@@ -97,13 +111,13 @@ pub fn results_table(results: &[CellResult], matrix: &Matrix) -> String {
         md += "---:|---:|---:|---:|";
     }
     md += "\n";
-    for m in &matrix.methods {
+    for m in methods {
         for p in &priors_of(results) {
-            let sel: Vec<&CellResult> = results.iter().filter(|r| r.method == m.name && &r.prior == p).collect();
+            let sel: Vec<&CellResult> = results.iter().filter(|r| &r.method == m && &r.prior == p).collect();
             if sel.is_empty() {
                 continue;
             }
-            md += &format!("| {} | {} |", m.name, p);
+            md += &format!("| {m} | {p} |");
             for v in &counts {
                 let s: Vec<&CellResult> = sel.iter().copied().filter(|r| r.views == *v).collect();
                 for key in ["roi_cd_sum_mm", "roi_hd95_mm", "cd_sum_mm", "hd95_mm"] {
@@ -211,7 +225,6 @@ pub fn configurations_table(results: &[CellResult]) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::super::experiment::Method;
     use super::*;
 
     fn result(case: &str, method: &str, views: usize, cd_roi: Option<f64>) -> CellResult {
@@ -231,14 +244,8 @@ mod tests {
 
     #[test]
     fn the_table_gives_mean_and_spread_over_cases_and_counts_undefined_cells() {
-        let matrix = Matrix {
-            views: vec![vec![0, 1]],
-            priors: vec![],
-            set: vec![],
-            methods: vec![Method { name: "full".into(), config: "x.toml".into(), set: vec![] }],
-        };
         let rs = [result("a", "full", 2, Some(2.0)), result("b", "full", 2, Some(4.0)), result("c", "full", 2, None)];
-        let md = results_table(&rs, &matrix);
+        let md = results_table(&rs, &["full".to_string()], &[2]);
         assert!(md.contains("| full | case | 3.00 ± 1.00 (1× ∞) |"), "{md}");
         let csv = results_csv(&rs);
         assert_eq!(csv.lines().count(), 4, "{csv}");

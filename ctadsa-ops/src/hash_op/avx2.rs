@@ -1,6 +1,6 @@
 //! AVX2 versions of the hash encoding's forward kernels: eight points per block, one vector lane
 //! per point, the table reads as gathers. Every value is computed with the same operations in
-//! the same order as the scalar kernels of [`super::cpu`] (no fused multiply-adds), so the
+//! the same order as the scalar kernels of [`super::level`] (no fused multiply-adds), so the
 //! results are the same bit for bit (`tests::avx2_kernels_equal_the_scalar_kernels`); points
 //! after the last whole block go through the scalar kernels.
 //!
@@ -10,7 +10,7 @@
 use std::arch::x86_64::*;
 
 use super::config::{HASH_P1, HASH_P2};
-use super::cpu::{Level, encode_level_jacobian_scalar, encode_level_scalar};
+use super::level::{Level, encode_level_jacobian_scalar, encode_level_scalar};
 
 /// Points per block.
 const LANES: usize = 8;
@@ -177,7 +177,7 @@ pub(super) fn encode_level_jacobian(
 
 #[cfg(test)]
 mod tests {
-    use super::super::cpu::{Level, levels};
+    use super::super::level::{Level, levels};
     use super::*;
     use crate::hash_op::HashGridConfig;
     use rand::{RngExt, SeedableRng};

@@ -16,6 +16,7 @@ mod config;
 pub mod cpu;
 #[cfg(feature = "wgpu")]
 pub mod gpu;
+mod level;
 
 use std::sync::Mutex;
 

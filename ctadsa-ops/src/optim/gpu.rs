@@ -3,11 +3,12 @@
 //! in burn's order: about fifteen tensor passes and launches each when composed of tensor ops).
 
 use burn::backend::TensorMetadata;
+use burn::backend::tensor::FloatTensor;
 use burn_cubecl::cubecl::prelude::*;
 use burn_cubecl::tensor::CubeTensor;
 use burn_cubecl::{CubeBackend, cubecl};
 
-use super::kernel::{AdamCoefficients, AdamUpdate};
+use super::kernel::{AdamCoefficients, AdamUpdate, FusedAdamBackend};
 use crate::cube::{empty, launch_1d, prepare};
 
 #[cube(launch)]
@@ -87,4 +88,17 @@ pub fn adam_update(
         );
     }
     AdamUpdate { param: param_out, moment_1: moment_1_out, moment_2: moment_2_out }
+}
+
+/// The op on CubeCL: [`adam_update`].
+impl FusedAdamBackend for burn_cubecl::CubeBackend {
+    fn adam_update(
+        param: FloatTensor<Self>,
+        grad: FloatTensor<Self>,
+        moment_1: FloatTensor<Self>,
+        moment_2: FloatTensor<Self>,
+        c: AdamCoefficients,
+    ) -> AdamUpdate<Self> {
+        adam_update(param, grad, moment_1, moment_2, c)
+    }
 }

@@ -166,19 +166,6 @@ impl FusedAdamBackend for NdArray {
     }
 }
 
-#[cfg(feature = "wgpu")]
-impl FusedAdamBackend for burn_cubecl::CubeBackend {
-    fn adam_update(
-        param: FloatTensor<Self>,
-        grad: FloatTensor<Self>,
-        moment_1: FloatTensor<Self>,
-        moment_2: FloatTensor<Self>,
-        c: AdamCoefficients,
-    ) -> AdamUpdate<Self> {
-        super::gpu::adam_update(param, grad, moment_1, moment_2, c)
-    }
-}
-
 impl<B: Backend + FusedAdamBackend, C: burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy>
     FusedAdamBackend for Autodiff<B, C>
 {
