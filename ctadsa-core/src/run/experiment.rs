@@ -462,21 +462,7 @@ fn remove_file_if_present(path: &Path) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn result(case: &str, method: &str, views: usize, cd_roi: Option<f64>) -> CellResult {
-        CellResult {
-            case: case.into(),
-            method: method.into(),
-            views,
-            view_list: "0,1".into(),
-            prior: "case".into(),
-            prior_threshold_mm: Some(1.0),
-            seconds: 1.0,
-            gaussians: 10,
-            metrics: BTreeMap::from([("roi_cd_sum_mm".to_string(), cd_roi)]),
-            config_hash: None,
-        }
-    }
+    use crate::run::results::tests::result;
 
     /// A matrix with two methods, views and cases of one name is refused (they would share cell
     /// folders); a cell finished with another configuration is not finished; a cell held by a

@@ -224,10 +224,11 @@ pub fn configurations_table(results: &[CellResult]) -> String {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
-    fn result(case: &str, method: &str, views: usize, cd_roi: Option<f64>) -> CellResult {
+    /// A cell result with one metric (CD_ROI), for the tests here and of the experiment.
+    pub(crate) fn result(case: &str, method: &str, views: usize, cd_roi: Option<f64>) -> CellResult {
         CellResult {
             case: case.into(),
             method: method.into(),
