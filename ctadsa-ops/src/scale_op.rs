@@ -4,11 +4,11 @@
 //! and their backward) while the other cores waited. The CPU kernels make one parallel pass each
 //! way with the same operations in the same order as burn's `sigmoid` (`exp(−ln(exp(−x) + 1))`),
 //! its backward (`σ·(1 − σ)·grad`) and the scaling, so the results are the same bit for bit
-//! (test); other backends compose their own primitive ops.
+//! (test); the CubeCL kernels do the same in one launch each way.
 
 #![allow(deprecated)] // burn-ndarray is deprecated in burn 0.22 in favour of burn-flex.
 
-#[cfg(any(feature = "wgpu", test))]
+#[cfg(test)]
 use burn::backend::Scalar;
 use burn::backend::autodiff::checkpoint::{base::Checkpointer, strategy::CheckpointStrategy};
 use burn::backend::autodiff::grads::Gradients;
@@ -78,8 +78,8 @@ impl BoundedScaleBackend for NdArray {
     }
 }
 
-/// The forward composed of a backend's own primitive ops.
-#[cfg(any(feature = "wgpu", test))]
+/// The forward composed of a backend's own primitive ops (the kernels' second oracle).
+#[cfg(test)]
 fn composed_forward<B: Backend>(raw: FloatTensor<B>, min_mm: f32, max_mm: f32) -> (FloatTensor<B>, FloatTensor<B>) {
     let sig = B::sigmoid(raw);
     let scales = B::float_add_scalar(
@@ -90,7 +90,7 @@ fn composed_forward<B: Backend>(raw: FloatTensor<B>, min_mm: f32, max_mm: f32) -
 }
 
 /// The backward composed of a backend's own primitive ops.
-#[cfg(any(feature = "wgpu", test))]
+#[cfg(test)]
 fn composed_backward<B: Backend>(
     sig: FloatTensor<B>,
     grad: FloatTensor<B>,
@@ -103,7 +103,7 @@ fn composed_backward<B: Backend>(
 #[cfg(feature = "wgpu")]
 impl BoundedScaleBackend for burn_cubecl::CubeBackend {
     fn bounded_scale(raw: FloatTensor<Self>, min_mm: f32, max_mm: f32) -> (FloatTensor<Self>, FloatTensor<Self>) {
-        composed_forward::<Self>(raw, min_mm, max_mm)
+        gpu::forward(raw, min_mm, max_mm)
     }
 
     fn bounded_scale_backward(
@@ -112,7 +112,92 @@ impl BoundedScaleBackend for burn_cubecl::CubeBackend {
         min_mm: f32,
         max_mm: f32,
     ) -> FloatTensor<Self> {
-        composed_backward::<Self>(sigmoid, grad, min_mm, max_mm)
+        gpu::backward(sigmoid, grad, min_mm, max_mm)
+    }
+}
+
+/// The CubeCL kernels: one launch each way (burn's composed sigmoid and scaling took six
+/// forward and four backward). Their oracle is the CPU kernels (`tests/ops_wgpu.rs`).
+#[cfg(feature = "wgpu")]
+mod gpu {
+    use burn::backend::TensorMetadata;
+    use burn_cubecl::cubecl;
+    use burn_cubecl::cubecl::prelude::*;
+    use burn_cubecl::tensor::CubeTensor;
+
+    use crate::cube::{empty, launch_1d, prepare};
+
+    /// `sig = σ(raw)`, `scales = sig·range + min`.
+    #[cube(launch)]
+    fn scale_forward_kernel(
+        raw: &Tensor<f32>,
+        scales: &mut Tensor<f32>,
+        sig: &mut Tensor<f32>,
+        min_mm: f32,
+        range: f32,
+        len: u32,
+    ) {
+        let id = ABSOLUTE_POS;
+        if id >= len as usize {
+            terminate!();
+        }
+        let s = f32::exp(-f32::ln(f32::exp(-raw[id]) + 1.0f32));
+        sig[id] = s;
+        scales[id] = s * range + min_mm;
+    }
+
+    /// `∂L/∂raw = σ·(1 − σ)·(grad·range)`.
+    #[cube(launch)]
+    fn scale_backward_kernel(sig: &Tensor<f32>, grad: &Tensor<f32>, out: &mut Tensor<f32>, range: f32, len: u32) {
+        let id = ABSOLUTE_POS;
+        if id >= len as usize {
+            terminate!();
+        }
+        let s = sig[id];
+        out[id] = (s * (1.0f32 - s)) * (grad[id] * range);
+    }
+
+    pub(super) fn forward(raw: CubeTensor, min_mm: f32, max_mm: f32) -> (CubeTensor, CubeTensor) {
+        let raw = prepare(raw);
+        let shape: Vec<usize> = raw.shape().iter().copied().collect();
+        let len: usize = shape.iter().product();
+        let (scales, sig) = (empty(shape.clone(), &raw), empty(shape, &raw));
+        if len > 0 {
+            let (count, dim) = launch_1d(&raw, len, 256);
+            scale_forward_kernel::launch(
+                &raw.client,
+                count,
+                dim,
+                raw.clone().into_tensor_arg(),
+                scales.clone().into_tensor_arg(),
+                sig.clone().into_tensor_arg(),
+                min_mm,
+                max_mm - min_mm,
+                len as u32,
+            );
+        }
+        (scales, sig)
+    }
+
+    pub(super) fn backward(sig: CubeTensor, grad: CubeTensor, min_mm: f32, max_mm: f32) -> CubeTensor {
+        let (sig, grad) = (prepare(sig), prepare(grad));
+        let shape: Vec<usize> = sig.shape().iter().copied().collect();
+        let len: usize = shape.iter().product();
+        let out = empty(shape, &sig);
+        if len > 0 {
+            let (count, dim) = launch_1d(&sig, len, 256);
+            scale_backward_kernel::launch(
+                &sig.client,
+                count,
+                dim,
+                sig.clone().into_tensor_arg(),
+                grad.into_tensor_arg(),
+                out.clone().into_tensor_arg(),
+                max_mm - min_mm,
+                len as u32,
+            );
+        }
+        out
     }
 }
 

@@ -1,4 +1,4 @@
-//! The field's MLP layer op, the bounded scale op, the SSIM window-blur op and the SSIM op on wgpu against the CPU (when a wgpu
+//! The field's MLP layer op, the bounded scale op, the SSIM window-blur op, the SSIM op and the anchoring term on wgpu against the CPU (when a wgpu
 //! adapter exists; `CTADSA_REQUIRE_WGPU=1` makes a missing adapter a failure).
 #![cfg(feature = "wgpu")]
 #![allow(deprecated)] // burn-ndarray is deprecated in burn 0.22; it is the CPU backend the tests use.
@@ -162,6 +162,41 @@ fn anchor_targets_on_wgpu_match_cpu() {
     assert_eq!(a.1, b.1, "anchored centres");
     assert!(a.1.contains(&1.0) && a.1.contains(&0.0), "a mix of anchored and free centres");
     assert_close("anchor targets", &a.0, &b.0);
+}
+
+/// The anchoring term as one op on wgpu (gather, search, one-workgroup reduction; scatter-add
+/// backward) against the tensor-op composition on the CPU: the term and the centres' gradient,
+/// with repeated samples and centres both anchored and free.
+#[test]
+fn anchor_loss_on_wgpu_matches_the_composed_cpu_term() {
+    use burn::tensor::Int;
+    use ctadsa_ops::anchor_op::grid::AnchorGrid;
+    use ctadsa_ops::anchor_op::{DeviceGrid, anchor_loss};
+    let Some(gpu) = wgpu_or_skip("anchor loss") else { return };
+    let pts: Vec<[f64; 3]> = (0..4000)
+        .map(|i| {
+            let (t, a) = (i as f64 * 0.005 - 10.0, i as f64 * 2.399);
+            [t, a.cos(), a.sin()]
+        })
+        .collect();
+    let n = 700;
+    let means = values(3 * n, 21).iter().map(|v| 2.0 * v).collect::<Vec<f32>>();
+    // 1,500 samples of 700 centres (with repeats), more than one workgroup's 256 units.
+    let sample: Vec<i64> = (0..1500).map(|j| (j * 7919 % n) as i64).collect();
+    let grid = AnchorGrid::new(&pts, 0.5);
+    let run = |device: Device| {
+        let device = device.autodiff();
+        let dg = DeviceGrid::new(&grid, 8, 0.5, &device);
+        let means = Tensor::<2>::from_data(TensorData::new(means.clone(), [n, 3]), &device).require_grad();
+        let sample = Tensor::<1, Int>::from_data(TensorData::new(sample.clone(), [sample.len()]), &device);
+        let loss = anchor_loss(means.clone(), sample, &dg).mul_scalar(3.0);
+        let grads = loss.backward();
+        (host_vec(loss), host_vec(means.grad(&grads).unwrap()))
+    };
+    let (a, b) = (run(Device::ndarray()), run(gpu));
+    assert!(a.0[0] > 0.0 && a.1.contains(&0.0) && a.1.iter().any(|g| *g != 0.0), "{:?}", a.0);
+    assert_close("anchor loss", &a.0, &b.0);
+    assert_close("anchor loss gradient", &a.1, &b.1);
 }
 
 /// The fused Adam kernel against the CPU loop: several steps, with and without the coupled L2

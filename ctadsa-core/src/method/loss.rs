@@ -101,8 +101,8 @@ impl LossTargets {
     /// `(1 − λ) L1 + λ (1 − SSIM)` on normalised images.
     pub fn render_loss(&self, pred: Tensor<3>, lambda_dssim: f64) -> (Tensor<1>, Tensor<1>, Tensor<1>) {
         let p = pred.mul_scalar(self.scale);
-        let t = self.target.clone().mul_scalar(self.scale);
-        let l1v = l1(p.clone(), t);
+        // The SSIM statistics' target is the normalised target (`target · scale`).
+        let l1v = l1(p.clone(), self.ssim_target.y.clone());
         let s = ssim_against(p, &self.ssim_target);
         let total =
             l1v.clone().mul_scalar(1.0 - lambda_dssim) + s.clone().neg().add_scalar(1.0).mul_scalar(lambda_dssim);

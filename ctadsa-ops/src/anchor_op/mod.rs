@@ -8,6 +8,9 @@
 #[cfg(feature = "wgpu")]
 mod gpu;
 pub mod grid;
+mod loss;
+
+pub use loss::{anchor_loss, composed as anchor_loss_composed};
 
 use burn::backend::ops::FloatTensorOps;
 use burn::backend::{

@@ -16,7 +16,7 @@ use rand_chacha::ChaCha8Rng;
 use crate::error::{CoreError, Result};
 use crate::method::loss::LossTargets;
 use crate::method::model::GaussianModel;
-use ctadsa_ops::anchor_op::anchor_targets;
+use ctadsa_ops::anchor_op::anchor_loss;
 use ctadsa_ops::readback::host_vec;
 
 use super::{StageTimes, StepLog, Trainer, decayed};
@@ -92,7 +92,7 @@ impl Trainer {
     /// The prior-anchor term at iteration `t` (mean squared distance of a random sample of
     /// centres to the mean of their `loss.pa_k` nearest prior points, for those whose nearest is
     /// within `loss.pa_radius_mm`; 0 when none is), or `None` before `loss.pa_start`. Found on
-    /// the device: nothing is read back.
+    /// the device (one op on wgpu): nothing is read back.
     fn anchor_loss(&self, model: &GaussianModel, t: usize) -> Option<Tensor<1>> {
         let cfg = &self.cfg;
         let anchor = self.anchor.as_ref().filter(|_| t >= cfg.loss.pa_start && cfg.loss.pa_weight > 0.0)?;
@@ -103,11 +103,7 @@ impl Trainer {
             if m == n { (0..n as i64).collect() } else { (0..m).map(|_| rng.random_range(0..n as i64)).collect() };
         ctadsa_ops::readback::count_upload(m);
         let sel = Tensor::<1, Int>::from_data(TensorData::new(sample, [m]), &self.device);
-        let chosen = model.means.val().select(0, sel);
-        let (target, keep) = anchor_targets(chosen.clone(), anchor);
-        let squared = (chosen - target).powi_scalar(2).sum_dim(1).reshape([m]);
-        let anchored = keep.clone().sum().clamp_min(1.0);
-        Some((squared * keep).sum() / anchored)
+        Some(anchor_loss(model.means.val(), sel, anchor))
     }
 
     /// The pose corrections' optimizer step at iteration `t` (from `pose.start` on).
