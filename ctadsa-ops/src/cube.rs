@@ -25,3 +25,28 @@ pub(crate) fn launch_1d(like: &CubeTensor, len: usize, units_per_cube: u32) -> (
     let dim = CubeDim::new_1d(units_per_cube);
     (cubecl::calculate_cube_count_elemwise(&like.client, len, dim), dim)
 }
+
+/// Whether `device` runs CubeCL kernels (wgpu), with or without autodiff.
+pub(crate) fn runs_on_cube(device: &burn::tensor::Device) -> bool {
+    matches!(device.clone().without_autodiff().as_dispatch(), burn::backend::DispatchDevice::Cube(_))
+}
+
+/// Units of the one-workgroup reductions (`2^REDUCE_LEVELS`).
+pub(crate) const REDUCE_UNITS: usize = 256;
+pub(crate) const REDUCE_LEVELS: u32 = 8;
+
+/// Sums `values[0..units]` into `values[0]` (a tree over `levels = log2(units)` rounds), every
+/// unit of the workgroup taking part; the sum is visible to all units on return.
+#[cube]
+pub(crate) fn tree_sum(values: &mut Shared<[f32]>, #[comptime] units: usize, #[comptime] levels: u32) {
+    let u = UNIT_POS as usize;
+    sync_cube();
+    for level in 0..levels {
+        let stride = units >> (level as usize + 1);
+        if u < stride {
+            let s = values[u] + values[u + stride];
+            values[u] = s;
+        }
+        sync_cube();
+    }
+}

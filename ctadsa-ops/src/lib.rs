@@ -13,6 +13,7 @@ pub mod error;
 pub mod hash_grid;
 pub mod hash_op;
 pub mod linear_op;
+pub mod loss_op;
 pub mod ndarray_host;
 pub mod optim;
 mod par_buffer;

@@ -1,4 +1,4 @@
-//! The field's MLP layer op, the bounded scale op, the SSIM window-blur op, the SSIM op and the anchoring term on wgpu against the CPU (when a wgpu
+//! The field's MLP layer op, the bounded scale op, the SSIM window-blur op, the SSIM op, the anchoring term and the loss terms on wgpu against the CPU (when a wgpu
 //! adapter exists; `CTADSA_REQUIRE_WGPU=1` makes a missing adapter a failure).
 #![cfg(feature = "wgpu")]
 #![allow(deprecated)] // burn-ndarray is deprecated in burn 0.22; it is the CPU backend the tests use.
@@ -197,6 +197,38 @@ fn anchor_loss_on_wgpu_matches_the_composed_cpu_term() {
     assert!(a.0[0] > 0.0 && a.1.contains(&0.0) && a.1.iter().any(|g| *g != 0.0), "{:?}", a.0);
     assert_close("anchor loss", &a.0, &b.0);
     assert_close("anchor loss gradient", &a.1, &b.1);
+}
+
+/// The image loss's terms as ops on wgpu (the L1 mean in one workgroup, the mix of L1 and SSIM)
+/// against their tensor-op composition on the CPU: values and gradients, with pixels where the
+/// images agree (the gradient of |x − y| is 0 there).
+#[test]
+fn loss_terms_on_wgpu_match_the_composed_cpu_terms() {
+    use ctadsa_ops::loss_op::{l1_mean, mix_l1_dssim};
+    let Some(gpu) = wgpu_or_skip("loss terms") else { return };
+    let [v, h, w] = [3, 37, 41];
+    let x = values(v * h * w, 31);
+    let mut y = values(v * h * w, 32);
+    for i in (0..y.len()).step_by(5) {
+        y[i] = x[i];
+    }
+    let run = |device: Device| {
+        let device = device.autodiff();
+        let xt = Tensor::<3>::from_data(TensorData::new(x.clone(), [v, h, w]), &device).require_grad();
+        let yt = Tensor::<3>::from_data(TensorData::new(y.clone(), [v, h, w]), &device);
+        let s = Tensor::<1>::from_data(TensorData::new(vec![0.8f32], [1]), &device).require_grad();
+        let l1 = l1_mean(xt.clone(), yt);
+        let total = mix_l1_dssim(l1.clone(), s.clone(), 0.2).mul_scalar(3.0);
+        let grads = total.backward();
+        let mut out = host_vec(l1);
+        out.extend(host_vec(total));
+        out.extend(host_vec(s.grad(&grads).unwrap()));
+        (out, host_vec(xt.grad(&grads).unwrap()))
+    };
+    let (a, b) = (run(Device::ndarray()), run(gpu));
+    assert!(a.1.contains(&0.0) && a.1.iter().any(|g| *g > 0.0) && a.1.iter().any(|g| *g < 0.0));
+    assert_close("L1, total, SSIM gradient", &a.0, &b.0);
+    assert_close("L1 gradient", &a.1, &b.1);
 }
 
 /// The fused Adam kernel against the CPU loop: several steps, with and without the coupled L2

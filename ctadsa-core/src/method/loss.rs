@@ -4,15 +4,11 @@
 
 use burn::tensor::{Device, Int, Tensor, TensorData};
 
+use ctadsa_ops::loss_op::{l1_mean, mix_l1_dssim};
 use ctadsa_ops::ssim::{SsimTarget, ssim_against};
 
 use crate::data::case::images::Image;
 use crate::stats::percentile;
-
-/// Mean absolute difference.
-pub fn l1(pred: Tensor<3>, target: Tensor<3>) -> Tensor<1> {
-    (pred - target).abs().mean()
-}
 
 /// Everything about the targets that the losses need, computed once.
 #[derive(Debug, Clone)]
@@ -98,15 +94,13 @@ impl LossTargets {
         }
     }
 
-    /// `(1 − λ) L1 + λ (1 − SSIM)` on normalised images.
+    /// `(1 − λ) L1 + λ (1 − SSIM)` on normalised images (the total, L1 and SSIM, `[1]` each).
     pub fn render_loss(&self, pred: Tensor<3>, lambda_dssim: f64) -> (Tensor<1>, Tensor<1>, Tensor<1>) {
         let p = pred.mul_scalar(self.scale);
         // The SSIM statistics' target is the normalised target (`target · scale`).
-        let l1v = l1(p.clone(), self.ssim_target.y.clone());
+        let l1v = l1_mean(p.clone(), self.ssim_target.y.clone());
         let s = ssim_against(p, &self.ssim_target);
-        let total =
-            l1v.clone().mul_scalar(1.0 - lambda_dssim) + s.clone().neg().add_scalar(1.0).mul_scalar(lambda_dssim);
-        (total, l1v, s)
+        (mix_l1_dssim(l1v.clone(), s.clone(), lambda_dssim), l1v, s)
     }
 
     /// The false-negative loss, averaged over views:
@@ -131,7 +125,7 @@ mod tests {
     #[test]
     fn l1_by_hand() {
         let t = |v: f32| Tensor::<3>::from_data(TensorData::new(vec![v; 6], [1, 2, 3]), &dev());
-        assert_eq!(l1(t(0.0), t(1.0)).into_scalar::<f32>(), 1.0);
+        assert_eq!(l1_mean(t(0.0), t(1.0)).into_scalar::<f32>(), 1.0);
     }
 
     #[test]

@@ -40,7 +40,7 @@ mod cube {
     use burn::backend::ops::FloatTensorOps;
     use burn::backend::tensor::IndexingUpdateOp;
     use burn::backend::{
-        Autodiff, AutodiffBackend, Backend, Dispatch, DispatchDevice, ExtensionType, TensorMetadata, backend_extension,
+        Autodiff, AutodiffBackend, Backend, Dispatch, ExtensionType, TensorMetadata, backend_extension,
         tensor::{FloatTensor, IntTensor},
     };
     use burn::tensor::{Int, Shape};
@@ -48,15 +48,11 @@ mod cube {
     use burn_cubecl::{CubeBackend, cubecl};
 
     use super::super::{AnchorBackend, AnchorSearch, DeviceGrid};
-    use crate::cube::{empty, prepare};
-
-    /// Units of the reduction's one workgroup (2^LEVELS).
-    const UNITS: usize = 256;
-    const LEVELS: u32 = 8;
+    use crate::cube::{REDUCE_LEVELS, REDUCE_UNITS, empty, prepare, runs_on_cube as on_cube, tree_sum};
 
     /// Whether `t` lives on a CubeCL device (with or without autodiff).
     pub(super) fn runs_on_cube(t: &burn::tensor::Tensor<2>) -> bool {
-        matches!(t.device().without_autodiff().as_dispatch(), DispatchDevice::Cube(_))
+        on_cube(&t.device())
     }
 
     /// The term `[1]` and each sample's gradient factor `2·keep·(c − target) / max(Σ keep, 1)`
@@ -111,17 +107,8 @@ mod cube {
         }
         squared[u] = a;
         kept[u] = b;
-        sync_cube();
-        for level in 0..levels {
-            let stride = units >> (level as usize + 1);
-            if u < stride {
-                let s = squared[u] + squared[u + stride];
-                let k = kept[u] + kept[u + stride];
-                squared[u] = s;
-                kept[u] = k;
-            }
-            sync_cube();
-        }
+        tree_sum(&mut squared, units, levels);
+        tree_sum(&mut kept, units, levels);
         let anchored = f32::max(kept[0], 1.0f32);
         if u == 0 {
             loss[0] = squared[0] / anchored;
@@ -155,15 +142,15 @@ mod cube {
             anchor_sums_kernel::launch(
                 &chosen.client,
                 CubeCount::Static(1, 1, 1),
-                CubeDim::new_1d(UNITS as u32),
+                CubeDim::new_1d(REDUCE_UNITS as u32),
                 chosen.clone().into_tensor_arg(),
                 targets.into_tensor_arg(),
                 keep.into_tensor_arg(),
                 loss.clone().into_tensor_arg(),
                 factors.clone().into_tensor_arg(),
                 m as u32,
-                UNITS,
-                LEVELS,
+                REDUCE_UNITS,
+                REDUCE_LEVELS,
             );
             AnchorLoss { loss, factors }
         }
