@@ -199,12 +199,12 @@ fn anchor_loss_on_wgpu_matches_the_composed_cpu_term() {
     assert_close("anchor loss gradient", &a.1, &b.1);
 }
 
-/// The image loss's terms as ops on wgpu (the L1 mean in one workgroup, the mix of L1 and SSIM)
-/// against their tensor-op composition on the CPU: values and gradients, with pixels where the
+/// The loss's pieces as ops on wgpu (the L1 mean in one workgroup, the total of L1, SSIM and
+/// further terms) against their tensor-op composition on the CPU: values and gradients, with pixels where the
 /// images agree (the gradient of |x − y| is 0 there).
 #[test]
 fn loss_terms_on_wgpu_match_the_composed_cpu_terms() {
-    use ctadsa_ops::loss_op::{l1_mean, mix_l1_dssim};
+    use ctadsa_ops::loss_op::{l1_mean, total_loss};
     let Some(gpu) = wgpu_or_skip("loss terms") else { return };
     let [v, h, w] = [3, 37, 41];
     let x = values(v * h * w, 31);
@@ -217,17 +217,24 @@ fn loss_terms_on_wgpu_match_the_composed_cpu_terms() {
         let xt = Tensor::<3>::from_data(TensorData::new(x.clone(), [v, h, w]), &device).require_grad();
         let yt = Tensor::<3>::from_data(TensorData::new(y.clone(), [v, h, w]), &device);
         let s = Tensor::<1>::from_data(TensorData::new(vec![0.8f32], [1]), &device).require_grad();
+        let pa = Tensor::<1>::from_data(TensorData::new(vec![0.3f32], [1]), &device).require_grad();
+        let fn_term = Tensor::<1>::from_data(TensorData::new(vec![0.6f32], [1]), &device).require_grad();
         let l1 = l1_mean(xt.clone(), yt);
-        let total = mix_l1_dssim(l1.clone(), s.clone(), 0.2).mul_scalar(3.0);
+        // The mix alone, with one term (one op on wgpu) and with two (the first composed).
+        let mix = total_loss(l1.clone(), s.clone(), 0.2, vec![]);
+        let one = total_loss(l1.clone(), s.clone(), 0.2, vec![(pa.clone(), 0.5)]);
+        let two = total_loss(l1.clone(), s.clone(), 0.2, vec![(fn_term.clone(), 1.5), (pa.clone(), 0.5)]);
+        let total = mix.clone().mul_scalar(3.0) + one.clone().mul_scalar(2.0) + two.clone();
         let grads = total.backward();
         let mut out = host_vec(l1);
-        out.extend(host_vec(total));
-        out.extend(host_vec(s.grad(&grads).unwrap()));
+        for t in [mix, one, two, s.grad(&grads).unwrap(), pa.grad(&grads).unwrap(), fn_term.grad(&grads).unwrap()] {
+            out.extend(host_vec(t));
+        }
         (out, host_vec(xt.grad(&grads).unwrap()))
     };
     let (a, b) = (run(Device::ndarray()), run(gpu));
     assert!(a.1.contains(&0.0) && a.1.iter().any(|g| *g > 0.0) && a.1.iter().any(|g| *g < 0.0));
-    assert_close("L1, total, SSIM gradient", &a.0, &b.0);
+    assert_close("L1, the totals, the terms' gradients", &a.0, &b.0);
     assert_close("L1 gradient", &a.1, &b.1);
 }
 

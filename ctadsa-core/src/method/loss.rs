@@ -4,7 +4,7 @@
 
 use burn::tensor::{Device, Int, Tensor, TensorData};
 
-use ctadsa_ops::loss_op::{l1_mean, mix_l1_dssim};
+use ctadsa_ops::loss_op::l1_mean;
 use ctadsa_ops::ssim::{SsimTarget, ssim_against};
 
 use crate::data::case::images::Image;
@@ -94,13 +94,14 @@ impl LossTargets {
         }
     }
 
-    /// `(1 − λ) L1 + λ (1 − SSIM)` on normalised images (the total, L1 and SSIM, `[1]` each).
-    pub fn render_loss(&self, pred: Tensor<3>, lambda_dssim: f64) -> (Tensor<1>, Tensor<1>, Tensor<1>) {
+    /// L1 and SSIM (`[1]` each) of `pred` against the targets, both images normalised; the
+    /// total is [`ctadsa_ops::loss_op::total_loss`].
+    pub fn image_terms(&self, pred: Tensor<3>) -> (Tensor<1>, Tensor<1>) {
         let p = pred.mul_scalar(self.scale);
         // The SSIM statistics' target is the normalised target (`target · scale`).
         let l1v = l1_mean(p.clone(), self.ssim_target.y.clone());
         let s = ssim_against(p, &self.ssim_target);
-        (mix_l1_dssim(l1v.clone(), s.clone(), lambda_dssim), l1v, s)
+        (l1v, s)
     }
 
     /// The false-negative loss, averaged over views:

@@ -22,6 +22,20 @@ pub trait LossTermsBackend: Backend {
     fn mix_l1_dssim(l1: FloatTensor<Self>, ssim: FloatTensor<Self>, lambda: f32) -> FloatTensor<Self>;
     /// The mix's gradients (`[1]` each): `(1 − λ)·grad` for `l1` and `−λ·grad` for `ssim`.
     fn mix_l1_dssim_backward(grad: FloatTensor<Self>, lambda: f32) -> (FloatTensor<Self>, FloatTensor<Self>);
+    /// The mix plus `weight·term` (`[1]` each).
+    fn mix_l1_dssim_plus(
+        l1: FloatTensor<Self>,
+        ssim: FloatTensor<Self>,
+        term: FloatTensor<Self>,
+        lambda: f32,
+        weight: f32,
+    ) -> FloatTensor<Self>;
+    /// Its gradients for `l1`, `ssim` and `term`.
+    fn mix_l1_dssim_plus_backward(
+        grad: FloatTensor<Self>,
+        lambda: f32,
+        weight: f32,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>);
 }
 
 /// One workgroup: `out[0] = Σ |x − y| / len`.
@@ -67,6 +81,36 @@ fn l1_grad_kernel(x: &Tensor<f32>, y: &Tensor<f32>, grad: &Tensor<f32>, gx: &mut
 fn mix_kernel(l1: &Tensor<f32>, ssim: &Tensor<f32>, out: &mut Tensor<f32>, lambda: f32) {
     if ABSOLUTE_POS == 0 {
         out[0] = (1.0f32 - lambda) * l1[0] + lambda * (1.0f32 - ssim[0]);
+    }
+}
+
+#[cube(launch)]
+fn mix_plus_kernel(
+    l1: &Tensor<f32>,
+    ssim: &Tensor<f32>,
+    term: &Tensor<f32>,
+    out: &mut Tensor<f32>,
+    lambda: f32,
+    weight: f32,
+) {
+    if ABSOLUTE_POS == 0 {
+        out[0] = (1.0f32 - lambda) * l1[0] + lambda * (1.0f32 - ssim[0]) + weight * term[0];
+    }
+}
+
+#[cube(launch)]
+fn mix_plus_grad_kernel(
+    grad: &Tensor<f32>,
+    g_l1: &mut Tensor<f32>,
+    g_ssim: &mut Tensor<f32>,
+    g_term: &mut Tensor<f32>,
+    lambda: f32,
+    weight: f32,
+) {
+    if ABSOLUTE_POS == 0 {
+        g_l1[0] = (1.0f32 - lambda) * grad[0];
+        g_ssim[0] = -lambda * grad[0];
+        g_term[0] = weight * grad[0];
     }
 }
 
@@ -147,6 +191,50 @@ impl LossTermsBackend for CubeBackend {
         );
         (g_l1, g_ssim)
     }
+
+    fn mix_l1_dssim_plus(
+        l1: FloatTensor<Self>,
+        ssim: FloatTensor<Self>,
+        term: FloatTensor<Self>,
+        lambda: f32,
+        weight: f32,
+    ) -> FloatTensor<Self> {
+        let (l1, ssim, term) = (prepare(l1), prepare(ssim), prepare(term));
+        let out = empty(vec![1], &l1);
+        mix_plus_kernel::launch(
+            &l1.client,
+            CubeCount::Static(1, 1, 1),
+            CubeDim::new_1d(1),
+            l1.clone().into_tensor_arg(),
+            ssim.into_tensor_arg(),
+            term.into_tensor_arg(),
+            out.clone().into_tensor_arg(),
+            lambda,
+            weight,
+        );
+        out
+    }
+
+    fn mix_l1_dssim_plus_backward(
+        grad: FloatTensor<Self>,
+        lambda: f32,
+        weight: f32,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>) {
+        let grad = prepare(grad);
+        let (g_l1, g_ssim, g_term) = (empty(vec![1], &grad), empty(vec![1], &grad), empty(vec![1], &grad));
+        mix_plus_grad_kernel::launch(
+            &grad.client,
+            CubeCount::Static(1, 1, 1),
+            CubeDim::new_1d(1),
+            grad.clone().into_tensor_arg(),
+            g_l1.clone().into_tensor_arg(),
+            g_ssim.clone().into_tensor_arg(),
+            g_term.clone().into_tensor_arg(),
+            lambda,
+            weight,
+        );
+        (g_l1, g_ssim, g_term)
+    }
 }
 
 #[derive(Debug)]
@@ -184,6 +272,26 @@ impl<B: Backend + LossTermsBackend> Backward<B, 2> for MixBackward {
     }
 }
 
+#[derive(Debug)]
+struct MixPlusBackward;
+
+impl<B: Backend + LossTermsBackend> Backward<B, 3> for MixPlusBackward {
+    /// `(λ, weight)`.
+    type State = (f32, f32);
+
+    fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, _checkpointer: &mut Checkpointer) {
+        let [node_l1, node_ssim, node_term] = ops.parents;
+        let grad = grads.consume::<B>(&ops.node);
+        let (lambda, weight) = ops.state;
+        let (g_l1, g_ssim, g_term) = B::mix_l1_dssim_plus_backward(grad, lambda, weight);
+        for (node, g) in [(node_l1, g_l1), (node_ssim, g_ssim), (node_term, g_term)] {
+            if let Some(node) = node {
+                grads.register::<B>(node.id, g);
+            }
+        }
+    }
+}
+
 impl<B: Backend + LossTermsBackend, C: CheckpointStrategy> LossTermsBackend for Autodiff<B, C> {
     fn l1_mean(x: FloatTensor<Self>, y: FloatTensor<Self>) -> FloatTensor<Self> {
         let y = y.into_primitive();
@@ -216,6 +324,31 @@ impl<B: Backend + LossTermsBackend, C: CheckpointStrategy> LossTermsBackend for 
         let (g_l1, g_ssim) = B::mix_l1_dssim_backward(grad.into_primitive(), lambda);
         (Self::from_inner(g_l1), Self::from_inner(g_ssim))
     }
+
+    fn mix_l1_dssim_plus(
+        l1: FloatTensor<Self>,
+        ssim: FloatTensor<Self>,
+        term: FloatTensor<Self>,
+        lambda: f32,
+        weight: f32,
+    ) -> FloatTensor<Self> {
+        let prep = MixPlusBackward.prepare::<C>([l1.node(), ssim.node(), term.node()]).compute_bound().stateful();
+        let out =
+            B::mix_l1_dssim_plus(l1.into_primitive(), ssim.into_primitive(), term.into_primitive(), lambda, weight);
+        match prep {
+            OpsKind::Tracked(prep) => prep.finish((lambda, weight), out),
+            OpsKind::UnTracked(prep) => prep.finish(out),
+        }
+    }
+
+    fn mix_l1_dssim_plus_backward(
+        grad: FloatTensor<Self>,
+        lambda: f32,
+        weight: f32,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>) {
+        let (a, b, c) = B::mix_l1_dssim_plus_backward(grad.into_primitive(), lambda, weight);
+        (Self::from_inner(a), Self::from_inner(b), Self::from_inner(c))
+    }
 }
 
 pub(super) fn l1_mean(x: burn::tensor::Tensor<3>, y: burn::tensor::Tensor<3>) -> burn::tensor::Tensor<1> {
@@ -232,5 +365,21 @@ pub(super) fn mix_l1_dssim(
         l1.into_dispatch(),
         ssim.into_dispatch(),
         lambda,
+    ))
+}
+
+pub(super) fn mix_l1_dssim_plus(
+    l1: burn::tensor::Tensor<1>,
+    ssim: burn::tensor::Tensor<1>,
+    term: burn::tensor::Tensor<1>,
+    lambda: f32,
+    weight: f32,
+) -> burn::tensor::Tensor<1> {
+    burn::tensor::Tensor::from_dispatch(<Dispatch as LossTermsBackend>::mix_l1_dssim_plus(
+        l1.into_dispatch(),
+        ssim.into_dispatch(),
+        term.into_dispatch(),
+        lambda,
+        weight,
     ))
 }

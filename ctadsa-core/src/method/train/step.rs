@@ -17,6 +17,7 @@ use crate::error::{CoreError, Result};
 use crate::method::loss::LossTargets;
 use crate::method::model::GaussianModel;
 use ctadsa_ops::anchor_op::anchor_loss;
+use ctadsa_ops::loss_op::total_loss;
 use ctadsa_ops::readback::host_vec;
 
 use super::{StageTimes, StepLog, Trainer, decayed};
@@ -152,19 +153,20 @@ impl Trainer {
         let image = self.render_views(&gaussians, probe.clone(), &idx, &views)?;
         times.render = clock.elapsed().as_secs_f64();
         let clock = Instant::now();
-        let (render_loss, l1, ssim) = targets.render_loss(image.clone(), cfg.loss.lambda_dssim);
-        let mut loss = render_loss;
+        let (l1, ssim) = targets.image_terms(image.clone());
+        let mut terms = Vec::new();
         let mut fn_value = None;
         if t >= cfg.loss.fn_start && cfg.loss.fn_weight > 0.0 {
             let f = targets.fn_loss(image, cfg.loss.fn_margin);
             fn_value = Some(f.clone().detach());
-            loss = loss + f.mul_scalar(cfg.loss.fn_weight);
+            terms.push((f, cfg.loss.fn_weight));
         }
         let mut pa_value = None;
         if let Some(pa) = self.anchor_loss(model, t) {
             pa_value = Some(pa.clone().detach());
-            loss = loss + pa.mul_scalar(cfg.loss.pa_weight);
+            terms.push((pa, cfg.loss.pa_weight));
         }
+        let loss = total_loss(l1.clone(), ssim.clone(), cfg.loss.lambda_dssim, terms);
         let values = [Some(loss.clone().detach()), Some(l1.detach()), Some(ssim.detach()), fn_value, pa_value];
         times.losses = clock.elapsed().as_secs_f64();
         let clock = Instant::now();
