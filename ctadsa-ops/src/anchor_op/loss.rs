@@ -186,17 +186,14 @@ mod cube {
         ) -> AnchorLoss<Self> {
             let n = means.shape()[0];
             let (points, table) = (points.into_primitive(), table.into_primitive());
-            match AnchorLossBackward.prepare::<C>([means.node()]).compute_bound().stateful() {
-                OpsKind::Tracked(prep) => {
-                    let out = B::anchor_loss(means.into_primitive(), sample.clone(), points, table, search);
-                    let factors = Self::from_inner(out.factors.clone());
-                    AnchorLoss { loss: prep.finish((out.factors, sample, n), out.loss), factors }
-                }
-                OpsKind::UnTracked(prep) => {
-                    let out = B::anchor_loss(means.into_primitive(), sample, points, table, search);
-                    AnchorLoss { loss: prep.finish(out.loss), factors: Self::from_inner(out.factors) }
-                }
-            }
+            let prep = AnchorLossBackward.prepare::<C>([means.node()]).compute_bound().stateful();
+            let out = B::anchor_loss(means.into_primitive(), sample.clone(), points, table, search);
+            let factors = Self::from_inner(out.factors.clone());
+            let loss = match prep {
+                OpsKind::Tracked(prep) => prep.finish((out.factors, sample, n), out.loss),
+                OpsKind::UnTracked(prep) => prep.finish(out.loss),
+            };
+            AnchorLoss { loss, factors }
         }
     }
 

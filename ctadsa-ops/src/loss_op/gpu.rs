@@ -1,4 +1,4 @@
-//! The CubeCL ops of [`super::l1_mean`] and [`super::mix_l1_dssim`], with their autodiff.
+//! The CubeCL ops of [`super::l1_mean`] and [`super::total_loss`], with their autodiff.
 
 use burn::backend::autodiff::checkpoint::{base::Checkpointer, strategy::CheckpointStrategy};
 use burn::backend::autodiff::grads::Gradients;
@@ -18,10 +18,6 @@ pub trait LossTermsBackend: Backend {
     fn l1_mean(x: FloatTensor<Self>, y: FloatTensor<Self>) -> FloatTensor<Self>;
     /// `∂ mean |x − y| / ∂x` times the upstream `grad` (`[1]`).
     fn l1_mean_backward(x: FloatTensor<Self>, y: FloatTensor<Self>, grad: FloatTensor<Self>) -> FloatTensor<Self>;
-    /// `(1 − λ)·l1 + λ·(1 − ssim)` (`[1]`).
-    fn mix_l1_dssim(l1: FloatTensor<Self>, ssim: FloatTensor<Self>, lambda: f32) -> FloatTensor<Self>;
-    /// The mix's gradients (`[1]` each): `(1 − λ)·grad` for `l1` and `−λ·grad` for `ssim`.
-    fn mix_l1_dssim_backward(grad: FloatTensor<Self>, lambda: f32) -> (FloatTensor<Self>, FloatTensor<Self>);
     /// The mix plus `weight·term` (`[1]` each).
     fn mix_l1_dssim_plus(
         l1: FloatTensor<Self>,
@@ -78,13 +74,6 @@ fn l1_grad_kernel(x: &Tensor<f32>, y: &Tensor<f32>, grad: &Tensor<f32>, gx: &mut
 }
 
 #[cube(launch)]
-fn mix_kernel(l1: &Tensor<f32>, ssim: &Tensor<f32>, out: &mut Tensor<f32>, lambda: f32) {
-    if ABSOLUTE_POS == 0 {
-        out[0] = (1.0f32 - lambda) * l1[0] + lambda * (1.0f32 - ssim[0]);
-    }
-}
-
-#[cube(launch)]
 fn mix_plus_kernel(
     l1: &Tensor<f32>,
     ssim: &Tensor<f32>,
@@ -111,14 +100,6 @@ fn mix_plus_grad_kernel(
         g_l1[0] = (1.0f32 - lambda) * grad[0];
         g_ssim[0] = -lambda * grad[0];
         g_term[0] = weight * grad[0];
-    }
-}
-
-#[cube(launch)]
-fn mix_grad_kernel(grad: &Tensor<f32>, g_l1: &mut Tensor<f32>, g_ssim: &mut Tensor<f32>, lambda: f32) {
-    if ABSOLUTE_POS == 0 {
-        g_l1[0] = (1.0f32 - lambda) * grad[0];
-        g_ssim[0] = -lambda * grad[0];
     }
 }
 
@@ -160,36 +141,6 @@ impl LossTermsBackend for CubeBackend {
             );
         }
         gx
-    }
-
-    fn mix_l1_dssim(l1: FloatTensor<Self>, ssim: FloatTensor<Self>, lambda: f32) -> FloatTensor<Self> {
-        let (l1, ssim) = (prepare(l1), prepare(ssim));
-        let out = empty(vec![1], &l1);
-        mix_kernel::launch(
-            &l1.client,
-            CubeCount::Static(1, 1, 1),
-            CubeDim::new_1d(1),
-            l1.clone().into_tensor_arg(),
-            ssim.into_tensor_arg(),
-            out.clone().into_tensor_arg(),
-            lambda,
-        );
-        out
-    }
-
-    fn mix_l1_dssim_backward(grad: FloatTensor<Self>, lambda: f32) -> (FloatTensor<Self>, FloatTensor<Self>) {
-        let grad = prepare(grad);
-        let (g_l1, g_ssim) = (empty(vec![1], &grad), empty(vec![1], &grad));
-        mix_grad_kernel::launch(
-            &grad.client,
-            CubeCount::Static(1, 1, 1),
-            CubeDim::new_1d(1),
-            grad.clone().into_tensor_arg(),
-            g_l1.clone().into_tensor_arg(),
-            g_ssim.clone().into_tensor_arg(),
-            lambda,
-        );
-        (g_l1, g_ssim)
     }
 
     fn mix_l1_dssim_plus(
@@ -254,25 +205,6 @@ impl<B: Backend + LossTermsBackend> Backward<B, 1> for L1Backward {
 }
 
 #[derive(Debug)]
-struct MixBackward;
-
-impl<B: Backend + LossTermsBackend> Backward<B, 2> for MixBackward {
-    type State = f32;
-
-    fn backward(self, ops: Ops<Self::State, 2>, grads: &mut Gradients, _checkpointer: &mut Checkpointer) {
-        let [node_l1, node_ssim] = ops.parents;
-        let grad = grads.consume::<B>(&ops.node);
-        let (g_l1, g_ssim) = B::mix_l1_dssim_backward(grad, ops.state);
-        if let Some(node) = node_l1 {
-            grads.register::<B>(node.id, g_l1);
-        }
-        if let Some(node) = node_ssim {
-            grads.register::<B>(node.id, g_ssim);
-        }
-    }
-}
-
-#[derive(Debug)]
 struct MixPlusBackward;
 
 impl<B: Backend + LossTermsBackend> Backward<B, 3> for MixPlusBackward {
@@ -309,22 +241,6 @@ impl<B: Backend + LossTermsBackend, C: CheckpointStrategy> LossTermsBackend for 
         Self::from_inner(B::l1_mean_backward(x.into_primitive(), y.into_primitive(), grad.into_primitive()))
     }
 
-    fn mix_l1_dssim(l1: FloatTensor<Self>, ssim: FloatTensor<Self>, lambda: f32) -> FloatTensor<Self> {
-        match MixBackward.prepare::<C>([l1.node(), ssim.node()]).compute_bound().stateful() {
-            OpsKind::Tracked(prep) => {
-                prep.finish(lambda, B::mix_l1_dssim(l1.into_primitive(), ssim.into_primitive(), lambda))
-            }
-            OpsKind::UnTracked(prep) => {
-                prep.finish(B::mix_l1_dssim(l1.into_primitive(), ssim.into_primitive(), lambda))
-            }
-        }
-    }
-
-    fn mix_l1_dssim_backward(grad: FloatTensor<Self>, lambda: f32) -> (FloatTensor<Self>, FloatTensor<Self>) {
-        let (g_l1, g_ssim) = B::mix_l1_dssim_backward(grad.into_primitive(), lambda);
-        (Self::from_inner(g_l1), Self::from_inner(g_ssim))
-    }
-
     fn mix_l1_dssim_plus(
         l1: FloatTensor<Self>,
         ssim: FloatTensor<Self>,
@@ -354,18 +270,6 @@ impl<B: Backend + LossTermsBackend, C: CheckpointStrategy> LossTermsBackend for 
 pub(super) fn l1_mean(x: burn::tensor::Tensor<3>, y: burn::tensor::Tensor<3>) -> burn::tensor::Tensor<1> {
     let y = y.detach();
     burn::tensor::Tensor::from_dispatch(<Dispatch as LossTermsBackend>::l1_mean(x.into_dispatch(), y.into_dispatch()))
-}
-
-pub(super) fn mix_l1_dssim(
-    l1: burn::tensor::Tensor<1>,
-    ssim: burn::tensor::Tensor<1>,
-    lambda: f32,
-) -> burn::tensor::Tensor<1> {
-    burn::tensor::Tensor::from_dispatch(<Dispatch as LossTermsBackend>::mix_l1_dssim(
-        l1.into_dispatch(),
-        ssim.into_dispatch(),
-        lambda,
-    ))
 }
 
 pub(super) fn mix_l1_dssim_plus(

@@ -29,11 +29,10 @@ pub fn total_loss(l1: Tensor<1>, ssim: Tensor<1>, lambda: f64, terms: Vec<(Tenso
     #[cfg(feature = "wgpu")]
     if crate::cube::runs_on_cube(&l1.device()) {
         let mut terms = terms;
-        // One launch each way for the mix and the last term; any other term composed.
-        let mut total = match terms.pop() {
-            Some((term, weight)) => gpu::mix_l1_dssim_plus(l1, ssim, term, lambda as f32, weight as f32),
-            None => gpu::mix_l1_dssim(l1, ssim, lambda as f32),
-        };
+        // One launch each way for the mix and the last term (a constant 0 when there is none);
+        // any other term composed.
+        let (term, weight) = terms.pop().unwrap_or_else(|| (Tensor::zeros([1], &l1.device()), 0.0));
+        let mut total = gpu::mix_l1_dssim_plus(l1, ssim, term, lambda as f32, weight as f32);
         for (term, weight) in terms {
             total = total + term.mul_scalar(weight);
         }
