@@ -10,6 +10,7 @@ pub mod blur_op;
 #[cfg(feature = "wgpu")]
 mod cube;
 pub mod error;
+pub mod field_op;
 pub mod hash_grid;
 pub mod hash_op;
 pub mod linear_op;

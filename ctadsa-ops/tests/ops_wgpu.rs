@@ -272,3 +272,69 @@ fn fused_adam_on_wgpu_matches_cpu() {
         }
     }
 }
+
+/// The whole opacity field as one op on wgpu (`field_op`) against its composition of the
+/// encoding and linear-layer ops on the CPU: densities and the gradients of the positions, the
+/// tables and every layer, with points outside the box (clamped) and a partial last chunk of
+/// the weight-gradient sums.
+#[test]
+fn fused_field_on_wgpu_matches_the_composed_cpu_field() {
+    use ctadsa_ops::field_op::{FieldSpec, Layer, field_densities};
+    use ctadsa_ops::hash_grid::HashGridConfig;
+    let Some(gpu) = wgpu_or_skip("fused field") else { return };
+    // Two dense levels and two hashed ones.
+    let grid = HashGridConfig {
+        levels: 4,
+        features: 2,
+        log2_table: 9,
+        base_resolution: 3.0,
+        growth: 2.0,
+        ..Default::default()
+    };
+    let (n, width, hidden) = (700, grid.output_dim(), 16);
+    let positions: Vec<f32> = values(3 * n, 31).iter().map(|v| 6.0 * v + 1.0).collect();
+    let tables: Vec<f32> = values(grid.features * grid.rows(), 32);
+    let shapes = [(width, hidden), (hidden, hidden), (hidden, 1)];
+    let weights: Vec<Vec<f32>> = shapes
+        .iter()
+        .enumerate()
+        .map(|(k, &(i, o))| values(i * o, 40 + k as u64).iter().map(|v| v * 0.5).collect())
+        .collect();
+    let mut biases: Vec<Vec<f32>> = shapes.iter().enumerate().map(|(k, &(_, o))| values(o, 50 + k as u64)).collect();
+    // Some densities on each side of the output ReLU's kink.
+    biases[2] = vec![0.2];
+    let up = values(n, 33);
+    for output in [Activation::Softplus, Activation::Relu] {
+        let spec = FieldSpec { min_mm: [-4.0, -5.0, -3.0], inv_size: [0.1, 0.125, 0.09], grid, output };
+        let run = |device: Device| {
+            let device = device.autodiff();
+            let p = Tensor::<2>::from_data(TensorData::new(positions.clone(), [n, 3]), &device).require_grad();
+            let t = Tensor::<2>::from_data(TensorData::new(tables.clone(), [grid.features, grid.rows()]), &device)
+                .require_grad();
+            let layers: Vec<Layer> = shapes
+                .iter()
+                .enumerate()
+                .map(|(k, &(i, o))| Layer {
+                    weight: Tensor::from_data(TensorData::new(weights[k].clone(), [i, o]), &device).require_grad(),
+                    bias: Tensor::from_data(TensorData::new(biases[k].clone(), [o]), &device).require_grad(),
+                })
+                .collect();
+            let out = field_densities(p.clone(), t.clone(), &layers, &spec);
+            let up = Tensor::<1>::from_data(TensorData::new(up.clone(), [n]), &device);
+            let grads = (out.clone() * up).sum().backward();
+            let mut all = vec![host_vec(out), host_vec(p.grad(&grads).unwrap()), host_vec(t.grad(&grads).unwrap())];
+            for l in &layers {
+                all.push(host_vec(l.weight.grad(&grads).unwrap()));
+                all.push(host_vec(l.bias.grad(&grads).unwrap()));
+            }
+            all
+        };
+        let (a, b) = (run(Device::ndarray()), run(gpu.clone()));
+        let names =
+            ["densities", "positions", "tables", "weight 0", "bias 0", "weight 1", "bias 1", "weight 2", "bias 2"];
+        for (k, name) in names.iter().enumerate() {
+            assert!(a[k].iter().any(|v| *v != 0.0), "{name} ({output:?}): all zero on the CPU");
+            assert_close(&format!("field {name} ({output:?})"), &a[k], &b[k]);
+        }
+    }
+}

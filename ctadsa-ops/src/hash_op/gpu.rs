@@ -19,6 +19,21 @@ use super::config::{HASH_P1, HASH_P2, HashGridConfig};
 /// `meta` per level: `[resolution, r + 1, dense (0/1), base row]`.
 #[cube]
 fn corner(u: &Tensor<f32>, meta: &Tensor<f32>, i: usize, l: usize, k: u32, mask: u32) -> (u32, f32, f32, f32, f32) {
+    corner_at(u[3 * i], u[3 * i + 1], u[3 * i + 2], meta, l, k, mask)
+}
+
+/// Corner `k` of level `l` around the point `(ux, uy, uz)`: its parameter row (without the
+/// feature offset), its trilinear weight and that weight's derivatives with respect to `u`.
+#[cube]
+pub(crate) fn corner_at(
+    ux: f32,
+    uy: f32,
+    uz: f32,
+    meta: &Tensor<f32>,
+    l: usize,
+    k: u32,
+    mask: u32,
+) -> (u32, f32, f32, f32, f32) {
     let res = meta[4 * l];
     let r1 = u32::cast_from(meta[4 * l + 1]);
     let dense = meta[4 * l + 2];
@@ -26,9 +41,6 @@ fn corner(u: &Tensor<f32>, meta: &Tensor<f32>, i: usize, l: usize, k: u32, mask:
     let ox = k & 1u32;
     let oy = (k >> 1u32) & 1u32;
     let oz = (k >> 2u32) & 1u32;
-    let ux = u[3 * i];
-    let uy = u[3 * i + 1];
-    let uz = u[3 * i + 2];
     let cxf = f32::clamp(ux, 0.0, 0.999999);
     let cyf = f32::clamp(uy, 0.0, 0.999999);
     let czf = f32::clamp(uz, 0.0, 0.999999);
@@ -127,7 +139,8 @@ fn hash_backward_kernel(
     grad_u_levels[3 * id + 2] = gz;
 }
 
-fn meta(c: &HashGridConfig, like: &CubeTensor) -> CubeTensor {
+/// The per-level table of [`corner_at`] (`[levels, 4]`).
+pub(crate) fn meta(c: &HashGridConfig, like: &CubeTensor) -> CubeTensor {
     let data: Vec<f32> = (0..c.levels)
         .flat_map(|l| {
             [c.resolution(l) as f32, (c.resolution(l) + 1) as f32, c.dense(l) as u8 as f32, c.level_offset(l) as f32]

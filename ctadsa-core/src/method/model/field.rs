@@ -6,8 +6,9 @@ use burn::nn::{Linear, LinearConfig};
 use burn::tensor::{Device, Tensor, TensorData};
 
 use burn::module::Param;
+use ctadsa_ops::field_op::{FieldSpec, Layer, field_densities};
 use ctadsa_ops::hash_grid::HashGrid;
-use ctadsa_ops::linear_op::{Activation, fused_linear};
+use ctadsa_ops::linear_op::Activation;
 use ctadsa_ops::random::uniform_tensor;
 
 pub use crate::config::{FieldConfig, OutputActivation};
@@ -19,15 +20,6 @@ pub struct FieldFrame {
     pub min_mm: [f32; 3],
     pub size_mm: [f32; 3],
     pub output: OutputActivation,
-}
-
-/// `act(x·W + b)` of a burn `Linear` through the fused op (its parameters, its gradients).
-fn fused(layer: &Linear, x: Tensor<2>, act: Activation) -> Tensor<2> {
-    let bias = match &layer.bias {
-        Some(b) => b.val(),
-        None => Tensor::zeros([layer.weight.dims()[1]], &x.device()),
-    };
-    fused_linear(x, layer.weight.val(), bias, act)
 }
 
 /// Hash grid + MLP.
@@ -83,24 +75,29 @@ impl OpacityField {
         Self { grid, hidden, output, frame: FieldFrame { min_mm, size_mm, output: config.output } }
     }
 
-    /// Densities `[N]` at positions `[N, 3]` (mm).
+    /// Densities `[N]` at positions `[N, 3]` (mm): one op on wgpu, composed of the encoding
+    /// and linear-layer ops elsewhere (`ctadsa_ops::field_op`).
     pub fn forward(&self, positions_mm: Tensor<2>) -> Tensor<1> {
-        let n = positions_mm.dims()[0];
         let device = positions_mm.device();
-        let min = Tensor::<1>::from_data(TensorData::new(self.frame.min_mm.to_vec(), [3]), &device).reshape([1, 3]);
-        let inv = Tensor::<1>::from_data(TensorData::new(self.frame.size_mm.map(|s| 1.0 / s).to_vec(), [3]), &device)
-            .reshape([1, 3]);
-        let u = (positions_mm - min) * inv;
-        let mut x = self.grid.forward(u);
-        for layer in &self.hidden {
-            x = fused(layer, x, Activation::Relu);
-        }
-        // The output activation runs inside the layer's op: one parallel pass each way, where
-        // burn's softplus makes seven single-threaded passes over the `[N]` densities.
-        let output = match self.frame.output {
-            OutputActivation::Relu => Activation::Relu,
-            OutputActivation::Softplus => Activation::Softplus,
+        let layer = |l: &Linear| Layer {
+            weight: l.weight.val(),
+            bias: match &l.bias {
+                Some(b) => b.val(),
+                None => Tensor::zeros([l.weight.dims()[1]], &device),
+            },
         };
-        fused(&self.output, x, output).reshape([n])
+        let layers: Vec<Layer> = self.hidden.iter().chain(std::iter::once(&self.output)).map(layer).collect();
+        let spec = FieldSpec {
+            min_mm: self.frame.min_mm,
+            inv_size: self.frame.size_mm.map(|s| 1.0 / s),
+            grid: self.grid.config,
+            // The output activation runs inside the layer's op: one parallel pass each way,
+            // where burn's softplus makes seven single-threaded passes over the `[N]` densities.
+            output: match self.frame.output {
+                OutputActivation::Relu => Activation::Relu,
+                OutputActivation::Softplus => Activation::Softplus,
+            },
+        };
+        field_densities(positions_mm, self.grid.tables.val(), &layers, &spec)
     }
 }
