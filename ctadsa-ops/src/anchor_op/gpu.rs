@@ -2,8 +2,11 @@
 //! (`grid.rs` says how; this kernel follows it step for step, with the k nearest kept sorted in
 //! local arrays of [`MAX_K`] entries).
 
-use burn::backend::TensorMetadata;
+use burn::backend::ops::IntTensorOps;
+use burn::backend::{IntDType, TensorMetadata};
+use burn::tensor::Shape;
 use burn_cubecl::cubecl::prelude::*;
+use burn_cubecl::kernel::into_contiguous;
 use burn_cubecl::tensor::CubeTensor;
 use burn_cubecl::{CubeBackend, cubecl};
 
@@ -38,6 +41,8 @@ fn lookup(table: &Tensor<f32>, cx: u32, cy: u32, cz: u32, mask: u32) -> (u32, u3
 #[allow(clippy::too_many_arguments)]
 fn anchor_kernel(
     queries: &Tensor<f32>,
+    sample: &Tensor<i32>,
+    chosen: &mut Tensor<f32>,
     points: &Tensor<f32>,
     table: &Tensor<f32>,
     targets: &mut Tensor<f32>,
@@ -52,14 +57,25 @@ fn anchor_kernel(
     radius: f32,
     max_shell: u32,
     #[comptime] max_k: usize,
+    #[comptime] gathered: bool,
 ) {
     let i = ABSOLUTE_POS;
     if i >= m as usize {
         terminate!();
     }
-    let qx = queries[3 * i];
-    let qy = queries[3 * i + 1];
-    let qz = queries[3 * i + 2];
+    // Query `i` is row `sample[i]` of `queries` when gathered (and copied to `chosen`).
+    let mut q = i;
+    if gathered {
+        q = sample[i] as usize;
+    }
+    let qx = queries[3 * q];
+    let qy = queries[3 * q + 1];
+    let qz = queries[3 * q + 2];
+    if gathered {
+        chosen[3 * i] = qx;
+        chosen[3 * i + 1] = qy;
+        chosen[3 * i + 2] = qz;
+    }
     let cx = i32::cast_from(f32::floor((qx - origin_x) / cell));
     let cy = i32::cast_from(f32::floor((qy - origin_y) / cell));
     let cz = i32::cast_from(f32::floor((qz - origin_z) / cell));
@@ -158,10 +174,42 @@ pub fn anchor_targets(
     table: CubeTensor,
     search: AnchorSearch,
 ) -> AnchorTargets<CubeBackend> {
-    let (queries, points, table) = (prepare(queries), prepare(points), prepare(table));
     let m = queries.shape()[0];
+    search_kernel(queries, None, m, points, table, search).1
+}
+
+/// The rows `means[sample]` `[m, 3]` and their anchor targets, the gather done by the search.
+pub fn gathered_anchor_targets(
+    means: CubeTensor,
+    sample: CubeTensor,
+    points: CubeTensor,
+    table: CubeTensor,
+    search: AnchorSearch,
+) -> (CubeTensor, AnchorTargets<CubeBackend>) {
+    let sample = CubeBackend::int_cast(sample, IntDType::I32);
+    let m = sample.shape()[0];
+    search_kernel(means, Some(sample), m, points, table, search)
+}
+
+/// One launch of [`anchor_kernel`] for `m` queries: the rows of `queries`, or the rows
+/// `sample` names (then also copied into the first tensor returned; a placeholder otherwise).
+fn search_kernel(
+    queries: CubeTensor,
+    sample: Option<CubeTensor>,
+    m: usize,
+    points: CubeTensor,
+    table: CubeTensor,
+    search: AnchorSearch,
+) -> (CubeTensor, AnchorTargets<CubeBackend>) {
+    let (queries, points, table) = (prepare(queries), prepare(points), prepare(table));
     let targets = empty(vec![m, 3], &queries);
     let keep = empty(vec![m], &queries);
+    let gathered = sample.is_some();
+    let chosen = empty(if gathered { vec![m, 3] } else { vec![1] }, &queries);
+    let sample = match sample {
+        Some(s) => into_contiguous(s),
+        None => CubeBackend::int_empty(Shape::new([1]), &queries.device, IntDType::I32),
+    };
     let slots = table.shape().num_elements() / SLOT;
     if m > 0 && slots > 0 {
         let (count, dim) = launch_1d(&queries, m, 64);
@@ -170,6 +218,8 @@ pub fn anchor_targets(
             count,
             dim,
             queries.clone().into_tensor_arg(),
+            sample.into_tensor_arg(),
+            chosen.clone().into_tensor_arg(),
             points.into_tensor_arg(),
             table.into_tensor_arg(),
             targets.clone().into_tensor_arg(),
@@ -184,7 +234,8 @@ pub fn anchor_targets(
             search.radius_mm,
             MAX_SHELL,
             MAX_K,
+            gathered,
         );
     }
-    AnchorTargets { targets, keep }
+    (chosen, AnchorTargets { targets, keep })
 }

@@ -2,8 +2,8 @@
 //! within the anchoring radius, of the squared distance (mm²) from the centre to the mean of its
 //! `k` nearest prior points (the targets are not differentiated).
 //!
-//! On a CubeCL device it is one op of three launches forward (gather, search, one-workgroup
-//! reduction) and three backward (scale, zeros, scatter-add), where burn's tensor ops took about
+//! On a CubeCL device it is one op of two launches forward (the search, which gathers the
+//! sampled centres, and a one-workgroup reduction) and three backward (scale, zeros, scatter-add), where burn's tensor ops took about
 //! twenty; elsewhere (NdArray) it is composed of tensor ops, unchanged, which is also the op's
 //! oracle (`tests/ops_wgpu.rs`).
 
@@ -37,7 +37,6 @@ mod cube {
     use burn::backend::autodiff::checkpoint::{base::Checkpointer, strategy::CheckpointStrategy};
     use burn::backend::autodiff::grads::Gradients;
     use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
-    use burn::backend::ops::FloatTensorOps;
     use burn::backend::tensor::IndexingUpdateOp;
     use burn::backend::{
         Autodiff, AutodiffBackend, Backend, Dispatch, ExtensionType, TensorMetadata, backend_extension,
@@ -47,8 +46,8 @@ mod cube {
     use burn_cubecl::cubecl::prelude::*;
     use burn_cubecl::{CubeBackend, cubecl};
 
-    use super::super::{AnchorBackend, AnchorSearch, DeviceGrid};
-    use crate::cube::{REDUCE_LEVELS, REDUCE_UNITS, empty, prepare, runs_on_cube as on_cube, tree_sum};
+    use super::super::{AnchorSearch, DeviceGrid};
+    use crate::cube::{REDUCE_LEVELS, REDUCE_UNITS, empty, runs_on_cube as on_cube, tree_sum};
 
     /// Whether `t` lives on a CubeCL device (with or without autodiff).
     pub(super) fn runs_on_cube(t: &burn::tensor::Tensor<2>) -> bool {
@@ -133,10 +132,9 @@ mod cube {
             table: FloatTensor<Self>,
             search: AnchorSearch,
         ) -> AnchorLoss<Self> {
-            let chosen = prepare(CubeBackend::float_select(means, 0, sample));
+            let (chosen, found) = super::super::gpu::gathered_anchor_targets(means, sample, points, table, search);
             let m = chosen.shape()[0];
-            let found = <CubeBackend as AnchorBackend>::anchor_targets(chosen.clone(), points, table, search);
-            let (targets, keep) = (prepare(found.targets), prepare(found.keep));
+            let (targets, keep) = (found.targets, found.keep);
             let loss = empty(vec![1], &chosen);
             let factors = empty(vec![m, 3], &chosen);
             anchor_sums_kernel::launch(
