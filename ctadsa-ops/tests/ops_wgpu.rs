@@ -279,9 +279,16 @@ fn fused_adam_on_wgpu_matches_cpu() {
 /// the weight-gradient sums.
 #[test]
 fn fused_field_on_wgpu_matches_the_composed_cpu_field() {
+    let Some(gpu) = wgpu_or_skip("fused field") else { return };
+    // A narrow MLP (units left idle) and the width the method trains.
+    for hidden in [16, 64] {
+        fused_field_matches_with(gpu.clone(), hidden);
+    }
+}
+
+fn fused_field_matches_with(gpu: Device, hidden: usize) {
     use ctadsa_ops::field_op::{FieldSpec, Layer, field_densities};
     use ctadsa_ops::hash_grid::HashGridConfig;
-    let Some(gpu) = wgpu_or_skip("fused field") else { return };
     // Two dense levels and two hashed ones.
     let grid = HashGridConfig {
         levels: 4,
@@ -291,16 +298,20 @@ fn fused_field_on_wgpu_matches_the_composed_cpu_field() {
         growth: 2.0,
         ..Default::default()
     };
-    let (n, width, hidden) = (700, grid.output_dim(), 16);
+    let (n, width) = (700, grid.output_dim());
     let positions: Vec<f32> = values(3 * n, 31).iter().map(|v| 6.0 * v + 1.0).collect();
     let tables: Vec<f32> = values(grid.features * grid.rows(), 32);
     let shapes = [(width, hidden), (hidden, hidden), (hidden, 1)];
     let weights: Vec<Vec<f32>> = shapes
         .iter()
         .enumerate()
-        .map(|(k, &(i, o))| values(i * o, 40 + k as u64).iter().map(|v| v * 0.5).collect())
+        .map(|(k, &(i, o))| values(i * o, 40 + k as u64).iter().map(|v| v * 2.0 / (i as f32).sqrt()).collect())
         .collect();
-    let mut biases: Vec<Vec<f32>> = shapes.iter().enumerate().map(|(k, &(_, o))| values(o, 50 + k as u64)).collect();
+    let mut biases: Vec<Vec<f32>> = shapes
+        .iter()
+        .enumerate()
+        .map(|(k, &(_, o))| values(o, 50 + k as u64).iter().map(|v| v * 0.1).collect())
+        .collect();
     // Some densities on each side of the output ReLU's kink.
     biases[2] = vec![0.2];
     let up = values(n, 33);
@@ -334,7 +345,7 @@ fn fused_field_on_wgpu_matches_the_composed_cpu_field() {
             ["densities", "positions", "tables", "weight 0", "bias 0", "weight 1", "bias 1", "weight 2", "bias 2"];
         for (k, name) in names.iter().enumerate() {
             assert!(a[k].iter().any(|v| *v != 0.0), "{name} ({output:?}): all zero on the CPU");
-            assert_close(&format!("field {name} ({output:?})"), &a[k], &b[k]);
+            assert_close(&format!("field {name} ({output:?}, H = {hidden})"), &a[k], &b[k]);
         }
     }
 }
