@@ -14,10 +14,11 @@ use ctadsa_ops::readback::Transfers;
 
 const QUICK_TOML: &str = include_str!(concat!(env!("CARGO_MANIFEST_DIR"), "/configs/quick.toml"));
 
-/// Kernel launches per step of the quick configuration at most (measured: 43 on 2026-11-26 with
-/// the whole opacity field as one op; 65 before it, 114 before the anchoring, scale, L1 and
+/// Kernel launches per step of the quick configuration at most (measured: 39 on 2026-11-27 with
+/// the whole opacity field as one op, the SSIM mean in one workgroup and the anchoring term's own
+/// gather and scatter; 65 before them, 114 before the anchoring, scale, L1 and
 /// loss-total ops, 402 before the fused Adam, linear-layer, SSIM and anchor kernels).
-const MAX_LAUNCHES_PER_STEP: f64 = 40.0;
+const MAX_LAUNCHES_PER_STEP: f64 = 39.0;
 
 #[test]
 fn a_quick_training_step_launches_few_kernels_and_reads_nothing_back() {

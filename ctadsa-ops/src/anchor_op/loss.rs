@@ -3,7 +3,7 @@
 //! `k` nearest prior points (the targets are not differentiated).
 //!
 //! On a CubeCL device it is one op of two launches forward (the search, which gathers the
-//! sampled centres, and a one-workgroup reduction) and three backward (scale, zeros, scatter-add), where burn's tensor ops took about
+//! sampled centres, and a one-workgroup reduction) and two backward (zeros, an atomic scatter-add of the scaled factors), where burn's tensor ops took about
 //! twenty; elsewhere (NdArray) it is composed of tensor ops, unchanged, which is also the op's
 //! oracle (`tests/ops_wgpu.rs`).
 
@@ -37,7 +37,6 @@ mod cube {
     use burn::backend::autodiff::checkpoint::{base::Checkpointer, strategy::CheckpointStrategy};
     use burn::backend::autodiff::grads::Gradients;
     use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
-    use burn::backend::tensor::IndexingUpdateOp;
     use burn::backend::{
         Autodiff, AutodiffBackend, Backend, Dispatch, ExtensionType, TensorMetadata, backend_extension,
         tensor::{FloatTensor, IntTensor},
@@ -47,7 +46,12 @@ mod cube {
     use burn_cubecl::{CubeBackend, cubecl};
 
     use super::super::{AnchorSearch, DeviceGrid};
-    use crate::cube::{REDUCE_LEVELS, REDUCE_UNITS, empty, runs_on_cube as on_cube, tree_sum};
+    use crate::cube::{REDUCE_LEVELS, REDUCE_UNITS, empty, launch_1d, prepare, runs_on_cube as on_cube, tree_sum};
+    use burn::backend::ops::{FloatTensorOps, IntTensorOps};
+    use burn::backend::{FloatDType, IntDType};
+    use burn_cubecl::kernel::into_contiguous;
+    use ctadsa_render::F32Add;
+    use ctadsa_render::kernels::{Accumulator, add_f32};
 
     /// Whether `t` lives on a CubeCL device (with or without autodiff).
     pub(super) fn runs_on_cube(t: &burn::tensor::Tensor<2>) -> bool {
@@ -73,6 +77,37 @@ mod cube {
             table: FloatTensor<Self>,
             search: AnchorSearch,
         ) -> AnchorLoss<Self>;
+
+        /// The centres' gradient `[n, 3]`: `grad · factors[j]` added to row `sample[j]` for
+        /// every sample (zero elsewhere).
+        fn anchor_loss_backward(
+            factors: FloatTensor<Self>,
+            sample: IntTensor<Self>,
+            grad: FloatTensor<Self>,
+            n: usize,
+        ) -> FloatTensor<Self>;
+    }
+
+    /// One unit per sample: `out[sample[j]] += grad · factors[j]` (atomically: samples repeat).
+    #[cube(launch)]
+    fn anchor_scatter_kernel(
+        factors: &Tensor<f32>,
+        sample: &Tensor<i32>,
+        grad: &Tensor<f32>,
+        out_f32: &mut Tensor<Atomic<f32>>,
+        out_u32: &mut Tensor<Atomic<u32>>,
+        m: u32,
+        #[comptime] native: bool,
+    ) {
+        let j = ABSOLUTE_POS;
+        if j >= m as usize {
+            terminate!();
+        }
+        let row = sample[j] as usize;
+        let g = grad[0];
+        for c in 0..3usize {
+            add_f32(out_f32, out_u32, 3 * row + c, g * factors[3 * j + c], native);
+        }
     }
 
     /// One workgroup of `units` units: the sums of `keep·|c − target|²` and of `keep` over the
@@ -152,12 +187,41 @@ mod cube {
             );
             AnchorLoss { loss, factors }
         }
+
+        fn anchor_loss_backward(
+            factors: FloatTensor<Self>,
+            sample: IntTensor<Self>,
+            grad: FloatTensor<Self>,
+            n: usize,
+        ) -> FloatTensor<Self> {
+            let (factors, grad) = (prepare(factors), prepare(grad));
+            let sample = into_contiguous(CubeBackend::int_cast(sample, IntDType::I32));
+            let m = sample.shape()[0];
+            let out = CubeBackend::float_zeros(Shape::new([n, 3]), &factors.device, FloatDType::F32);
+            if m > 0 {
+                let acc = Accumulator::new(&out, F32Add::Auto);
+                let (count, dim) = launch_1d(&factors, m, 256);
+                anchor_scatter_kernel::launch(
+                    &factors.client,
+                    count,
+                    dim,
+                    factors.clone().into_tensor_arg(),
+                    sample.into_tensor_arg(),
+                    grad.into_tensor_arg(),
+                    acc.as_f32.into_tensor_arg(),
+                    acc.as_u32.into_tensor_arg(),
+                    m as u32,
+                    acc.native,
+                );
+            }
+            out
+        }
     }
 
     #[derive(Debug)]
     struct AnchorLossBackward;
 
-    impl<B: Backend> Backward<B, 1> for AnchorLossBackward {
+    impl<B: Backend + AnchorLossBackend> Backward<B, 1> for AnchorLossBackward {
         /// The factors `[m, 3]`, the sample, and the number of centres.
         type State = (FloatTensor<B>, IntTensor<B>, usize);
 
@@ -166,10 +230,7 @@ mod cube {
             let grad = grads.consume::<B>(&ops.node);
             let (factors, sample, n) = ops.state;
             if let Some(node) = node_means {
-                let values = B::float_mul(factors, B::float_reshape(grad, Shape::new([1, 1])));
-                let device = values.device();
-                let zeros = B::float_zeros(Shape::new([n, 3]), &device, values.dtype().into());
-                grads.register::<B>(node.id, B::float_select_assign(zeros, 0, sample, values, IndexingUpdateOp::Add));
+                grads.register::<B>(node.id, B::anchor_loss_backward(factors, sample, grad, n));
             }
         }
     }
@@ -192,6 +253,15 @@ mod cube {
                 OpsKind::UnTracked(prep) => prep.finish(out.loss),
             };
             AnchorLoss { loss, factors }
+        }
+
+        fn anchor_loss_backward(
+            factors: FloatTensor<Self>,
+            sample: IntTensor<Self>,
+            grad: FloatTensor<Self>,
+            n: usize,
+        ) -> FloatTensor<Self> {
+            Self::from_inner(B::anchor_loss_backward(factors.into_primitive(), sample, grad.into_primitive(), n))
         }
     }
 
