@@ -21,6 +21,7 @@ use crate::data::volume::Volume;
 use crate::data::volume::skeleton::{SkeletonParams, skeletonize};
 use crate::error::Result;
 use crate::eval::centreline_metrics::{CentrelineMatch, CentrelineScores, score_centreline};
+use crate::output::centring::centre_nodes;
 use crate::output::confidence::{
     CONFIDENCE_BINS, ConfidenceBin, bin_of, branch_confidence, confidence_bins, confidence_rgb, node_confidence,
     without_doubtful_branches, write_branches_csv,
@@ -64,12 +65,15 @@ impl SolidPart<'_> {
 /// by at most a voxel: the voxel estimate steps and runs low on wide vessels, while the
 /// iso-surface of a vessel one voxel wide lies closer to its axis than the vessel's wall. A
 /// node within a voxel of the prior (inside, or nearer its surface than a voxel) is of type
-/// [`KIND_PRIOR_VESSEL`], any other of type [`KIND_NEW_VESSEL`].
+/// [`KIND_PRIOR_VESSEL`], any other of type [`KIND_NEW_VESSEL`]. With `centring`, the nodes in
+/// the extracted solid and outside the prior's voxels are first centred on the extracted
+/// surface ([`centre_nodes`]: at most a voxel, in vessels up to four voxels wide).
 pub fn completed_centreline(
     extracted: SolidPart,
     prior: Option<SolidPart>,
     prior_kept: bool,
     params: &SkeletonParams,
+    centring: bool,
 ) -> VesselTree {
     let solid = match prior.filter(|_| prior_kept) {
         Some(p) => Volume {
@@ -81,6 +85,11 @@ pub fn completed_centreline(
     let mut tree = skeletonize(&solid, params);
     let h = solid.grid.spacing_mm.iter().copied().fold(f64::INFINITY, f64::min);
     let extracted_index = SurfaceIndex::new(extracted.surface);
+    if centring {
+        // Nodes of the extracted solid outside the prior's voxels, in vessels up to 4 voxels wide.
+        let outside_prior = |p: DVec3| prior.is_none_or(|part| !part.voxels.is_set_at(p));
+        centre_nodes(&mut tree, &extracted_index, |p| extracted.voxels.is_set_at(p) && outside_prior(p), h, 4.0 * h);
+    }
     let prior_index = prior.map(|p| (p, SurfaceIndex::new(p.surface)));
     let depths: Vec<(f64, f64, f64)> = tree
         .nodes

@@ -446,7 +446,8 @@ fn write_centreline_of(
         min_branch_mm: out.centreline_min_branch_mm,
         ..SkeletonParams::default()
     };
-    let tree = completed_centreline(extracted, prior_part, surface.kept_prior.is_some(), &params);
+    let tree =
+        completed_centreline(extracted, prior_part, surface.kept_prior.is_some(), &params, out.centreline_centring);
     // The completed volume (inside the extracted surface, islands dropped as in the mesh, and the
     // prior's voxels where it is kept) against the voxels inside the true surface, both on the
     // density's grid (vessels thinner than its voxels break up alike in both), with the two

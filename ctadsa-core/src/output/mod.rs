@@ -2,6 +2,7 @@
 //! writes, plots and the HTML report (with its interactive 3-D view).
 
 pub mod centreline;
+pub mod centring;
 pub mod confidence;
 pub mod export;
 pub mod extraction;

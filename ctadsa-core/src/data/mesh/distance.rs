@@ -5,7 +5,7 @@
 
 use glam::DVec3;
 use parry3d_f64::math::Vector;
-use parry3d_f64::query::PointQuery;
+use parry3d_f64::query::{PointQuery, Ray, RayCast};
 use parry3d_f64::shape::TriMesh as ParryMesh;
 use rayon::prelude::*;
 
@@ -48,6 +48,21 @@ impl SurfaceIndex {
         }
     }
 
+    /// The closest point of the surface to `p` (`None` for an empty surface).
+    pub fn closest(&self, p: DVec3) -> Option<DVec3> {
+        let m = self.mesh.as_ref()?;
+        let q = m.project_local_point(Vector::new(p.x, p.y, p.z), false).point;
+        Some(DVec3::new(q.x, q.y, q.z))
+    }
+
+    /// Distance (mm) along the unit direction `dir` from `origin` to the first triangle hit
+    /// (`None`: nothing within `max_mm`).
+    pub fn first_hit(&self, origin: DVec3, dir: DVec3, max_mm: f64) -> Option<f64> {
+        let m = self.mesh.as_ref()?;
+        let ray = Ray::new(Vector::new(origin.x, origin.y, origin.z), Vector::new(dir.x, dir.y, dir.z));
+        m.cast_local_ray(&ray, max_mm, false)
+    }
+
     /// Distances (mm) from every point to the surface, in parallel.
     pub fn distances(&self, points: &[DVec3]) -> Vec<f64> {
         points.par_iter().map(|&p| self.distance(p)).collect()
@@ -71,5 +86,10 @@ mod tests {
         assert!((s.distance(DVec3::new(-3.0, -4.0, 0.0)) - 5.0).abs() < 1e-12);
         assert_eq!(s.distance(DVec3::new(1.0, 1.0, 0.0)), 0.0);
         assert!(SurfaceIndex::new(&TriMesh::default()).distance(DVec3::ZERO).is_infinite());
+        assert_eq!(s.closest(DVec3::new(1.0, 1.0, 3.0)), Some(DVec3::new(1.0, 1.0, 0.0)));
+        let hit = s.first_hit(DVec3::new(1.0, 1.0, 3.0), DVec3::new(0.0, 0.0, -1.0), 10.0);
+        assert!(hit.is_some_and(|t| (t - 3.0).abs() < 1e-12), "{hit:?}");
+        assert_eq!(s.first_hit(DVec3::new(1.0, 1.0, 3.0), DVec3::Z, 10.0), None, "pointing away");
+        assert_eq!(s.first_hit(DVec3::new(1.0, 1.0, 3.0), DVec3::new(0.0, 0.0, -1.0), 2.0), None, "too far");
     }
 }
