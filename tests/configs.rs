@@ -56,4 +56,19 @@ fn shipped_configs_load_and_matrices_point_at_them() {
     assert_eq!(cpu.output.level_mask_threshold_two_views, quick.output.level_mask_threshold_two_views);
     cpu.output.level_mask_threshold = quick.output.level_mask_threshold;
     assert_eq!(format!("{cpu:?}"), format!("{quick:?}"), "cpu.toml changes only the budget and the 3-view level");
+    // The 512² configuration is the quick one with 1.5 times the iterations, its schedule
+    // scaled with the run, nothing else.
+    let mut fine = Config::load(Some(&root.join("quick-512.toml")), &[]).unwrap();
+    let scaled = |n: usize| n * 3 / 2;
+    assert_eq!(fine.run.iterations, scaled(quick.run.iterations));
+    assert_eq!(
+        [fine.densify.from, fine.densify.until, fine.densify.every, fine.loss.pa_start],
+        [quick.densify.from, quick.densify.until, quick.densify.every, quick.loss.pa_start].map(scaled)
+    );
+    assert_eq!(fine.densify.reseed_at, quick.densify.reseed_at.iter().map(|&i| scaled(i)).collect::<Vec<_>>());
+    fine.run.iterations = quick.run.iterations;
+    (fine.densify.from, fine.densify.until, fine.densify.every) = (quick.densify.from, quick.densify.until, quick.densify.every);
+    fine.loss.pa_start = quick.loss.pa_start;
+    fine.densify.reseed_at = quick.densify.reseed_at.clone();
+    assert_eq!(format!("{fine:?}"), format!("{quick:?}"), "quick-512.toml changes only the budget");
 }
