@@ -67,7 +67,8 @@ fn shipped_configs_load_and_matrices_point_at_them() {
     );
     assert_eq!(fine.densify.reseed_at, quick.densify.reseed_at.iter().map(|&i| scaled(i)).collect::<Vec<_>>());
     fine.run.iterations = quick.run.iterations;
-    (fine.densify.from, fine.densify.until, fine.densify.every) = (quick.densify.from, quick.densify.until, quick.densify.every);
+    (fine.densify.from, fine.densify.until, fine.densify.every) =
+        (quick.densify.from, quick.densify.until, quick.densify.every);
     fine.loss.pa_start = quick.loss.pa_start;
     fine.densify.reseed_at = quick.densify.reseed_at.clone();
     assert_eq!(format!("{fine:?}"), format!("{quick:?}"), "quick-512.toml changes only the budget");
