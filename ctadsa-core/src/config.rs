@@ -115,6 +115,21 @@ pub struct InitConfig {
     pub occluded_connected: bool,
     /// Apply `occluded_views_support` only to runs with at least this many views.
     pub occluded_min_views: usize,
+    /// Where `connected_to_prior_mm` applies (runs of at most `connected_max_views` views):
+    /// instead of keeping every group of supported voxels that comes that close to the prior,
+    /// grow from those voxels, nearest the prior first, at most this far (mm of path), each
+    /// view's pixel claimed by the first voxel that reaches it (`crate::method::seed_growth`:
+    /// a ghost, where two vessels' back-projections cross, finds its pixels taken by the vessels
+    /// grown along their length). The seeds are then `grow_claims_n2` of the grown voxels, at
+    /// least `grow_claims_spacing_mm` apart, instead of `n2` and `seed_spacing_mm`. 0 = off:
+    /// on the 8 BraVa trees with 2 views it halves the ghosts among the seeds and seeds a third
+    /// more of the missing centreline, and leaves the trained result within the run-to-run
+    /// spread (docs/RESULTS.md, "Two views: what the seeds change").
+    pub grow_claims_mm: f64,
+    /// Image seeds with `grow_claims_mm` (at most).
+    pub grow_claims_n2: usize,
+    /// Spacing (mm) of the image seeds with `grow_claims_mm`.
+    pub grow_claims_spacing_mm: f64,
     /// Keep only seeds in connected groups of supported voxels that come within this distance
     /// (mm) of the prior: a vessel tree is connected, while the intersections of two views'
     /// back-projections ("ghosts") float free. 0 = off. Measured on the 8 BraVa trees
@@ -142,6 +157,9 @@ impl Default for InitConfig {
             occluded_views_support: false,
             occluded_connected: true,
             occluded_min_views: 3,
+            grow_claims_mm: 0.0,
+            grow_claims_n2: 20_000,
+            grow_claims_spacing_mm: 0.7,
             connected_to_prior_mm: 3.0,
             connected_max_views: 2,
             seed_spacing_mm: 0.0,

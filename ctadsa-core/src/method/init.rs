@@ -5,7 +5,9 @@
 //!   (solid) prior; each voxel of a back-projection grid is looked up in every view's residual
 //!   and kept when supported in all views (intersection) and outside the prior; the N2 voxels
 //!   with the largest geometric-mean residual intensity become centres (jittered inside the voxel).
-//!   Variants: union instead of intersection, uniform random, masks instead of residuals.
+//!   Variants: union instead of intersection, uniform random, masks instead of residuals, and
+//!   (`init.grow_claims_mm`) the supported voxels grown from the prior one depth per pixel
+//!   (`crate::method::seed_growth`).
 //! - isotropic scales from the mean squared distance to the k nearest other centres, identity
 //!   rotations.
 
@@ -24,10 +26,11 @@ use crate::data::mesh::sample::sample_surface;
 use crate::data::volume::{BoxMm, Grid, Volume};
 use crate::error::{CoreError, Result};
 use crate::method::model::{GaussianInit, ScaleBounds};
+use crate::method::seed_growth::grow_from;
 
 /// Pixel of a world point in a view (nearest pixel centre), if on the detector.
 #[inline]
-fn pixel_of(view: &ConeBeamView, p: DVec3) -> Option<usize> {
+pub(crate) fn pixel_of(view: &ConeBeamView, p: DVec3) -> Option<usize> {
     let uv = view.project(p)?;
     let (c, r) = (uv.x.round(), uv.y.round());
     if c < 0.0 || r < 0.0 || c >= view.width() as f64 || r >= view.height() as f64 {
@@ -157,8 +160,13 @@ pub fn n2_seeds(
     let occluded = occluded.filter(|_| intersect);
     let mut scored = back_project(&grid, views, &support, occluded.as_deref(), images, exclude, intersect);
     // Not for the mask-only mode, which ignores the prior by design.
+    let (mut spacing_mm, mut n) = (cfg.seed_spacing_mm, cfg.n2);
     if let Some(s) = exclude {
-        if cfg.connected_to_prior_mm > 0.0 && views.len() <= cfg.connected_max_views {
+        let to_prior = cfg.connected_to_prior_mm > 0.0 && views.len() <= cfg.connected_max_views;
+        if to_prior && cfg.grow_claims_mm > 0.0 {
+            scored = grow_from(&grid, views, &support, scored, s, cfg.connected_to_prior_mm, cfg.grow_claims_mm);
+            (spacing_mm, n) = (cfg.grow_claims_spacing_mm, cfg.grow_claims_n2);
+        } else if to_prior {
             scored = connected_to_anchors(scored, s, cfg.connected_to_prior_mm, |_| false);
         } else if occluded.is_some() && cfg.occluded_connected {
             // A voxel that a view passed only because the prior hides it must belong to a group
@@ -166,7 +174,7 @@ pub fn n2_seeds(
             scored = connected_to_anchors(scored, s, cfg.connected_to_prior_mm, |&(_, _, full)| full);
         }
     }
-    Ok(best_centres(scored, cfg.seed_spacing_mm, cfg.n2, h, &mut rng))
+    Ok(best_centres(scored, spacing_mm, n, h, &mut rng))
 }
 
 /// The centres (mm) of the `n` best-scored voxels (of side `voxel_mm`), at least `spacing_mm`
@@ -240,13 +248,7 @@ pub(crate) fn connected_to_anchors(
     is_anchor: impl Fn(&Scored) -> bool,
 ) -> Vec<Scored> {
     let grid = prior.grid;
-    let index_of = |c: DVec3| {
-        let ijk = [0, 1, 2].map(|a| ((c[a] - grid.origin_mm[a]) / grid.spacing_mm[a]).floor() as isize);
-        ijk.iter()
-            .zip(grid.dims)
-            .all(|(&i, d)| i >= 0 && (i as usize) < d)
-            .then(|| grid.index(ijk[0] as usize, ijk[1] as usize, ijk[2] as usize))
-    };
+    let index_of = |c: DVec3| grid.index_at(c);
     // Distance² (mm²) of every voxel outside the prior to the prior.
     let outside = prior.map(|v| u8::from(v == 0));
     let dist2 = crate::data::volume::edt::squared_edt(&outside);
@@ -487,6 +489,37 @@ pub(crate) mod tests {
         assert_eq!(on(&connected, floating), 0, "the floating vessel is dropped");
         assert!(on(&connected, branch) >= on(&all, branch), "the branch keeps its seeds (and gets the freed ones)");
         assert_eq!(seeds_up_to(3.0, 2), all, "three views are more than connected_max_views: no filter");
+    }
+
+    #[test]
+    fn seeds_grown_from_the_prior_keep_the_branch_and_drop_the_floating_vessel() {
+        let (branch, floating) = (([4.0, 0.0, 0.0], [4.0, 8.0, 8.0]), ([-8.0, 8.0, -8.0], [-8.0, 8.0, 8.0]));
+        let (_, views, _, bounds) = scene();
+        let (prior, images) = prior_and_images(PRIOR, &[branch, floating], &views, &bounds);
+        let seeds = |n_views: usize, grow_mm: f64| {
+            let cfg = InitConfig {
+                n2: 2000,
+                prior_dilation_px: 1,
+                grow_claims_mm: grow_mm,
+                grow_claims_n2: 500,
+                grow_claims_spacing_mm: 0.4,
+                ..InitConfig::default()
+            };
+            n2_seeds(&cfg, &views[..n_views], &images[..n_views], Some(&prior), &bounds, 0.4, 7).unwrap()
+        };
+        let on =
+            |seeds: &[DVec3], s: ([f64; 3], [f64; 3])| seeds.iter().filter(|p| to_segment(**p, s.0, s.1) < 1.5).count();
+        let grown = seeds(2, 50.0);
+        eprintln!(
+            "grown: {} seeds, {} on the branch, {} on the floating vessel",
+            grown.len(),
+            on(&grown, branch),
+            on(&grown, floating)
+        );
+        assert!(grown.len() <= 500, "grow_claims_n2 caps them");
+        assert!(on(&grown, branch) > 20, "the branch grows from the prior");
+        assert_eq!(on(&grown, floating), 0, "nothing reaches the floating vessel");
+        assert_eq!(seeds(3, 50.0), seeds(3, 0.0), "three views are more than connected_max_views: no growth");
     }
 
     #[test]

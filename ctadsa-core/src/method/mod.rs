@@ -10,6 +10,7 @@ pub mod loss;
 pub mod model;
 pub mod pose;
 pub mod reseed;
+pub(crate) mod seed_growth;
 pub mod train;
 pub mod training_time;
 pub mod working_box;

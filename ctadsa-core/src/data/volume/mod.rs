@@ -129,6 +129,16 @@ impl Grid {
         (i * self.dims[1] + j) * self.dims[2] + k
     }
 
+    /// Linear index of the voxel containing `p` (mm); `None` outside the grid.
+    #[inline]
+    pub fn index_at(&self, p: DVec3) -> Option<usize> {
+        let ijk = [0, 1, 2].map(|a| ((p[a] - self.origin_mm[a]) / self.spacing_mm[a]).floor());
+        ijk.iter()
+            .zip(self.dims)
+            .all(|(&v, d)| v >= 0.0 && v < d as f64)
+            .then(|| self.index(ijk[0] as usize, ijk[1] as usize, ijk[2] as usize))
+    }
+
     /// Centre of voxel `(i, j, k)` (mm).
     #[inline]
     pub fn centre_mm(&self, i: usize, j: usize, k: usize) -> DVec3 {
@@ -205,12 +215,7 @@ impl<T: Copy + Default> Volume<T> {
 impl Volume<u8> {
     /// Whether the voxel containing `p` (mm) is set; false outside the grid.
     pub fn is_set_at(&self, p: DVec3) -> bool {
-        let g = self.grid;
-        let ijk = [0, 1, 2].map(|a| ((p[a] - g.origin_mm[a]) / g.spacing_mm[a]).floor());
-        if ijk.iter().zip(g.dims).any(|(&v, d)| !(v >= 0.0 && v < d as f64)) {
-            return false;
-        }
-        self.get(ijk[0] as usize, ijk[1] as usize, ijk[2] as usize) != 0
+        self.grid.index_at(p).is_some_and(|i| self.data[i] != 0)
     }
 
     /// Number of non-zero voxels.
