@@ -463,9 +463,18 @@ pub(crate) mod tests {
         assert!(seeds.iter().any(|p| to_segment(*p, PRIOR.0, PRIOR.1) < 2.0), "the prior vessel is seeded too");
     }
 
+    /// A branch leaving the prior and a vessel floating free of it.
+    const BRANCH: ([f64; 3], [f64; 3]) = ([4.0, 0.0, 0.0], [4.0, 8.0, 8.0]);
+    const FLOATING: ([f64; 3], [f64; 3]) = ([-8.0, 8.0, -8.0], [-8.0, 8.0, 8.0]);
+
+    /// Seeds within 1.5 mm of the segment `s`.
+    fn seeds_on(seeds: &[DVec3], s: ([f64; 3], [f64; 3])) -> usize {
+        seeds.iter().filter(|p| to_segment(**p, s.0, s.1) < 1.5).count()
+    }
+
     #[test]
     fn seeds_connected_to_the_prior_keep_branches_and_drop_floating_vessels() {
-        let (branch, floating) = (([4.0, 0.0, 0.0], [4.0, 8.0, 8.0]), ([-8.0, 8.0, -8.0], [-8.0, 8.0, 8.0]));
+        let (branch, floating) = (BRANCH, FLOATING);
         let (_, views, _, bounds) = scene();
         let (prior, images) = prior_and_images(PRIOR, &[branch, floating], &views, &bounds);
         let seeds_up_to = |reach: f64, max_views: usize| {
@@ -481,8 +490,7 @@ pub(crate) mod tests {
             n2_seeds(&cfg, &views, &images, Some(&prior), &bounds, 0.4, 7).unwrap()
         };
         let seeds_with = |reach: f64| seeds_up_to(reach, 3);
-        let on =
-            |seeds: &[DVec3], s: ([f64; 3], [f64; 3])| seeds.iter().filter(|p| to_segment(**p, s.0, s.1) < 1.5).count();
+        let on = seeds_on;
         let all = seeds_with(0.0);
         assert!(on(&all, floating) > 20 && on(&all, branch) > 20, "both vessels are seeded without the filter");
         let connected = seeds_with(3.0);
@@ -493,7 +501,7 @@ pub(crate) mod tests {
 
     #[test]
     fn seeds_grown_from_the_prior_keep_the_branch_and_drop_the_floating_vessel() {
-        let (branch, floating) = (([4.0, 0.0, 0.0], [4.0, 8.0, 8.0]), ([-8.0, 8.0, -8.0], [-8.0, 8.0, 8.0]));
+        let (branch, floating) = (BRANCH, FLOATING);
         let (_, views, _, bounds) = scene();
         let (prior, images) = prior_and_images(PRIOR, &[branch, floating], &views, &bounds);
         let seeds = |n_views: usize, grow_mm: f64| {
@@ -507,8 +515,7 @@ pub(crate) mod tests {
             };
             n2_seeds(&cfg, &views[..n_views], &images[..n_views], Some(&prior), &bounds, 0.4, 7).unwrap()
         };
-        let on =
-            |seeds: &[DVec3], s: ([f64; 3], [f64; 3])| seeds.iter().filter(|p| to_segment(**p, s.0, s.1) < 1.5).count();
+        let on = seeds_on;
         let grown = seeds(2, 50.0);
         eprintln!(
             "grown: {} seeds, {} on the branch, {} on the floating vessel",

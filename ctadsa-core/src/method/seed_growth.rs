@@ -9,8 +9,8 @@
 //! that ray, and a later voxel on it is kept only near the claim. A true vessel, reached along
 //! its own length from its junction with the prior, claims its pixels before the ghosts that
 //! cross it can, and the ghosts, which meet the tree only where they cross it, find their
-//! pixels taken. Where a view's pixel is covered by the prior, the view does not claim: the
-//! growth carries the depth in from where every view shows the vessel.
+//! pixels taken. With `init.occluded_views_support`, a view whose pixel the prior covers does not
+//! claim: the growth carries the depth in from where every view shows the vessel.
 
 use std::cmp::Reverse;
 use std::collections::{BinaryHeap, HashMap};
@@ -40,7 +40,6 @@ pub(crate) fn grow_with_claims(
     // Path length in 1/1000 voxel (integer heap keys).
     let unit = |voxels: f64| (voxels * 1000.0).round() as u64;
     let max_cost = unit(reach_mm / h);
-
     let tolerance_mm = 1.5 * h;
     let mut slot: HashMap<usize, usize> = HashMap::with_capacity(candidates.len());
     let mut cost: HashMap<usize, u64> = HashMap::new();
