@@ -5,6 +5,7 @@
 //! shared.
 
 pub mod correction;
+pub mod mesh;
 pub mod noise;
 
 use ctadsa_render::ConeBeamView;
