@@ -47,6 +47,11 @@ impl Mask {
         Mask { data: self.data.iter().zip(&other.data).map(|(&a, &b)| a && !b).collect(), ..self.clone() }
     }
 
+    /// Pixels set in either.
+    pub fn or(&self, other: &Mask) -> Mask {
+        Mask { data: self.data.iter().zip(&other.data).map(|(&a, &b)| a || b).collect(), ..self.clone() }
+    }
+
     /// Pixels set in both.
     pub fn and(&self, other: &Mask) -> Mask {
         Mask { data: self.data.iter().zip(&other.data).map(|(&a, &b)| a && b).collect(), ..self.clone() }
@@ -75,6 +80,54 @@ pub fn vessel_mask(image: &Image, threshold: f64) -> Mask {
     }
 }
 
+/// The contrast per mm (image units per mm) of a solid of chord lengths `chords` (mm per
+/// pixel, as [`crate::data::projector::mesh::mesh_chords`]; NaN = unknown) in `image`: the median
+/// of `image / chord` over the pixels whose chord exceeds 0.5 mm (a vessel passing behind or in
+/// front of the solid adds to its line integral, so most such pixels show the solid alone);
+/// 0 where no chord exceeds 0.5 mm.
+pub fn contrast_per_mm(image: &Image, chords: &[f32]) -> f64 {
+    let ratios: Vec<f64> =
+        chords.iter().zip(&image.data).filter(|(c, _)| **c > 0.5).map(|(&c, &v)| v as f64 / c as f64).collect();
+    if ratios.is_empty() { 0.0 } else { percentile(&ratios, 50.0) }
+}
+
+/// What the solid of chord lengths `chords` (mm per pixel) at `contrast` (image units per mm)
+/// leaves of `image`: `image − contrast × chord`; 0 where the chord is unknown (NaN).
+pub fn minus_solid(image: &Image, chords: &[f32], contrast: f64) -> Image {
+    let data = chords
+        .iter()
+        .zip(&image.data)
+        .map(|(&c, &v)| if c.is_finite() { (v as f64 - contrast * c as f64) as f32 } else { 0.0 })
+        .collect();
+    Image { data, ..image.clone() }
+}
+
+/// Grey-level dilation of a row-major image `width` wide: each pixel the largest value within
+/// `r` pixels (a square); NaN wherever one lies within reach.
+pub fn max_filtered(values: &[f32], width: usize, r: u32) -> Vec<f32> {
+    if r == 0 || width == 0 {
+        return values.to_vec();
+    }
+    let (h, r) = (values.len() / width, r as usize);
+    let max = |a: f32, b: f32| if a.is_nan() || b.is_nan() { f32::NAN } else { a.max(b) };
+    let mut rows = vec![0.0f32; values.len()];
+    for y in 0..h {
+        let row = &values[y * width..(y + 1) * width];
+        for c in 0..width {
+            rows[y * width + c] =
+                row[c.saturating_sub(r)..=(c + r).min(width - 1)].iter().fold(f32::MIN, |m, &v| max(m, v));
+        }
+    }
+    let mut out = vec![0.0f32; values.len()];
+    for y in 0..h {
+        for c in 0..width {
+            out[y * width + c] =
+                (y.saturating_sub(r)..=(y + r).min(h - 1)).fold(f32::MIN, |m, yy| max(m, rows[yy * width + c]));
+        }
+    }
+    out
+}
+
 /// The prior as solid voxels on `grid`.
 pub fn prior_solid(prior: &TriMesh, grid: Grid) -> Volume<u8> {
     voxelize_mesh(prior, grid)
@@ -88,4 +141,34 @@ pub fn silhouettes(solid: &Volume<u8>, views: &[ConeBeamView]) -> Vec<Mask> {
         .zip(views)
         .map(|(img, v)| Mask { width: v.width(), height: v.height(), data: img.iter().map(|&x| x > 0.0).collect() })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn minus_solid_removes_the_solid_at_its_fitted_contrast_and_keeps_what_lies_behind_it() {
+        // A solid of chords 0..4 mm at 2.5 units per mm, a vessel of 0.6 units behind it on
+        // three pixels and beside it on one; one pixel of unknown chord.
+        let chords: Vec<f32> = vec![0.0, 1.0, 2.0, 3.0, 4.0, 4.0, 3.0, f32::NAN];
+        let extra = [0.6, 0.0, 0.0, 0.6, 0.6, 0.0, 0.6, 0.6];
+        let data = chords
+            .iter()
+            .zip(extra)
+            .map(|(&c, e)| 2.5 * c.max(0.0) + e)
+            .map(|v| if v.is_nan() { 9.0 } else { v })
+            .collect();
+        let image = Image { width: 8, height: 1, data };
+        let mu = contrast_per_mm(&image, &chords);
+        assert!((mu - 2.575).abs() < 1e-6, "{mu}");
+        let rest = minus_solid(&image, &chords, mu);
+        // Median of the ratios (2.5, 2.5, 2.7, 2.65, 2.5, 2.7) over the chords > 0.5 mm: 2.575.
+        let expected = [0.6, -0.075, -0.15, 0.375, 0.3, -0.3, 0.375, 0.0];
+        for (got, want) in rest.data.iter().zip(expected) {
+            assert!((*got as f64 - want).abs() < 1e-5, "{:?}", rest.data);
+        }
+        // No chord long enough to fit a contrast.
+        assert_eq!(contrast_per_mm(&image, &[0.2f32; 8]), 0.0);
+    }
 }
