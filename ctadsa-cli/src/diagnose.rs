@@ -43,6 +43,7 @@ pub fn run(args: DiagnoseArgs) -> Result<()> {
         ("found (surface within radius + 0.5 mm)", b.found),
         ("not in every view's vessel mask", b.not_in_masks),
         ("behind the prior's dilated projection in some view", b.behind_prior),
+        ("… of which an N2 seed lies within 1.5 mm", b.behind_prior_seeded),
         ("in every residual, but no N2 seed within 1.5 mm", b.not_seeded),
         ("seeded, signal explained at a wrong depth in every view", b.misplaced),
         ("seeded, density below the iso-level", b.faded),

@@ -45,7 +45,8 @@ pub const SEED_RADIUS_MM: f64 = 1.5;
 /// Density farther than this (mm) from the point and from the true surface is "elsewhere".
 pub const ELSEWHERE_MM: f64 = 2.0;
 
-/// Fractions of the missing centreline length in each class (they sum to 1).
+/// Fractions of the missing centreline length in each class (the classes sum to 1;
+/// `behind_prior_seeded` is a part of `behind_prior`).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 pub struct LossBreakdown {
     pub found: f64,
@@ -54,6 +55,10 @@ pub struct LossBreakdown {
     pub not_seeded: f64,
     pub misplaced: f64,
     pub faded: f64,
+    /// The part of `behind_prior` that has an N2 seed within [`SEED_RADIUS_MM`] all the same
+    /// (`init.subtract_prior` seeds there): seeded, and lost in training.
+    #[serde(default)]
+    pub behind_prior_seeded: f64,
     /// Missing centreline length (mm).
     pub length_mm: f64,
 }
@@ -135,6 +140,9 @@ pub fn diagnose(missing: &[Segment], inp: &DiagnoseInputs) -> LossBreakdown {
         } else if px.iter().zip(&masks).any(|(q, m)| !q.is_some_and(|q| m.data[q])) {
             &mut out.not_in_masks
         } else if px.iter().zip(inp.prior_silhouettes).any(|(q, m)| q.is_some_and(|q| m.data[q])) {
+            if to_seed[k] <= SEED_RADIUS_MM {
+                out.behind_prior_seeded += w;
+            }
             &mut out.behind_prior
         } else if !(to_seed[k] <= SEED_RADIUS_MM) {
             &mut out.not_seeded
@@ -155,6 +163,7 @@ pub fn diagnose(missing: &[Segment], inp: &DiagnoseInputs) -> LossBreakdown {
             &mut out.not_seeded,
             &mut out.misplaced,
             &mut out.faded,
+            &mut out.behind_prior_seeded,
         ] {
             *f /= l;
         }
