@@ -72,7 +72,11 @@ pub fn vessel_level(image: &Image, threshold: f64) -> f64 {
 
 /// Vessel mask of an image.
 pub fn vessel_mask(image: &Image, threshold: f64) -> Mask {
-    let level = vessel_level(image, threshold);
+    above(image, vessel_level(image, threshold))
+}
+
+/// The pixels of `image` above `level` (and above 0).
+pub fn above(image: &Image, level: f64) -> Mask {
     Mask {
         width: image.width,
         height: image.height,

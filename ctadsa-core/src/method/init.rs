@@ -14,6 +14,8 @@
 //! - isotropic scales from the mean squared distance to the k nearest other centres, identity
 //!   rotations.
 
+use std::borrow::Cow;
+
 use ctadsa_render::ConeBeamView;
 use glam::DVec3;
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
@@ -24,7 +26,7 @@ use rayon::prelude::*;
 use crate::config::{InitConfig, SeedMode};
 use crate::data::case::images::Image;
 use crate::data::masks::{
-    Mask, contrast_per_mm, max_filtered, minus_solid, prior_solid, silhouettes, vessel_level, vessel_mask,
+    Mask, above, contrast_per_mm, max_filtered, minus_solid, prior_solid, silhouettes, vessel_level,
 };
 use crate::data::mesh::TriMesh;
 use crate::data::mesh::sample::sample_surface;
@@ -145,9 +147,9 @@ pub fn n2_seeds(
         return Ok(out);
     }
     let levels: Vec<f64> = images.iter().map(|img| vessel_level(img, cfg.mask_threshold)).collect();
-    let masks: Vec<Mask> = images.iter().map(|img| vessel_mask(img, cfg.mask_threshold)).collect();
+    let masks: Vec<Mask> = images.iter().zip(&levels).map(|(img, &level)| above(img, level)).collect();
     // What scores a supported voxel: the images, or with `subtract_prior` what the prior leaves.
-    let mut values: Vec<Image> = images.to_vec();
+    let mut values: Cow<[Image]> = Cow::Borrowed(images);
     let mut occluded: Option<Vec<Mask>> = None;
     let support: Vec<Mask> = match cfg.n2_mode {
         SeedMode::AllViewsIntersect => masks.iter().map(|m| m.dilated(cfg.residual_dilation_px)).collect(),
@@ -172,8 +174,10 @@ pub fn n2_seeds(
                         let chords = mesh_chords(mesh, &views[vi])?;
                         let contrast = contrast_per_mm(&images[vi], &chords);
                         let longest = max_filtered(&chords, m.width as usize, cfg.prior_dilation_px);
-                        values[vi] = minus_solid(&images[vi], &longest, contrast);
-                        Mask { data: values[vi].data.iter().map(|&v| v as f64 > levels[vi]).collect(), ..m.clone() }
+                        let rest = minus_solid(&images[vi], &longest, contrast);
+                        let shown = above(&rest, levels[vi]);
+                        values.to_mut()[vi] = rest;
+                        shown
                     }
                     None => m.minus(p),
                 };
@@ -494,6 +498,13 @@ pub(crate) mod tests {
     const BRANCH: ([f64; 3], [f64; 3]) = ([4.0, 0.0, 0.0], [4.0, 8.0, 8.0]);
     const FLOATING: ([f64; 3], [f64; 3]) = ([-8.0, 8.0, -8.0], [-8.0, 8.0, 8.0]);
 
+    /// The scene's views and box with the prior, a branch that leaves it and a floating vessel.
+    fn branch_and_floating() -> (TriMesh, Vec<ConeBeamView>, Vec<Image>, BoxMm) {
+        let (_, views, _, bounds) = scene();
+        let (prior, images) = prior_and_images(PRIOR, &[BRANCH, FLOATING], &views, &bounds);
+        (prior, views, images, bounds)
+    }
+
     /// Seeds within 1.5 mm of the segment `s`.
     fn seeds_on(seeds: &[DVec3], s: ([f64; 3], [f64; 3])) -> usize {
         seeds.iter().filter(|p| to_segment(**p, s.0, s.1) < 1.5).count()
@@ -502,8 +513,7 @@ pub(crate) mod tests {
     #[test]
     fn seeds_connected_to_the_prior_keep_branches_and_drop_floating_vessels() {
         let (branch, floating) = (BRANCH, FLOATING);
-        let (_, views, _, bounds) = scene();
-        let (prior, images) = prior_and_images(PRIOR, &[branch, floating], &views, &bounds);
+        let (prior, views, images, bounds) = branch_and_floating();
         let seeds_up_to = |reach: f64, max_views: usize| {
             let cfg = InitConfig {
                 n2: 2000,
@@ -529,8 +539,7 @@ pub(crate) mod tests {
     #[test]
     fn seeds_grown_from_the_prior_keep_the_branch_and_drop_the_floating_vessel() {
         let (branch, floating) = (BRANCH, FLOATING);
-        let (_, views, _, bounds) = scene();
-        let (prior, images) = prior_and_images(PRIOR, &[branch, floating], &views, &bounds);
+        let (prior, views, images, bounds) = branch_and_floating();
         let seeds = |n_views: usize, grow_mm: f64| {
             let cfg = InitConfig {
                 n2: 2000,
