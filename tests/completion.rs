@@ -527,7 +527,7 @@ fn written_density(dir: &std::path::Path) -> Vec<f32> {
 }
 
 #[test]
-fn the_prior_only_member_is_trained_resumed_and_averaged_in() {
+fn the_members_are_trained_resumed_and_averaged_in() {
     let iterations = 20;
     let base = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("member-{}", std::process::id()));
     let device = Device::ndarray().autodiff();
@@ -537,36 +537,46 @@ fn the_prior_only_member_is_trained_resumed_and_averaged_in() {
             Outcome::Interrupted { .. } => panic!("not asked to stop"),
         }
     };
-    // With the member, stopped half-way through the member and resumed.
+    // With a member of seed 7 and the prior-only member, stopped half-way through the seed
+    // member (the second training) and resumed.
     let mut cfg = tiny_config(iterations);
     cfg.run.prior_only_member = true;
+    cfg.run.member_seeds = vec![7];
     let with = base.join("with");
     let mut stop = StopInMember { at: iterations / 2, trainings: 0, iteration: 0 };
     let outcome =
         run_completion(tiny_case(), cfg.clone(), device.clone(), &with, Start::Overwrite, &mut stop).expect("run");
     let Outcome::Interrupted { checkpoint } = outcome else { panic!("asked to stop in the member") };
-    assert!(checkpoint.starts_with(with.join("prior-only-member")), "{}", checkpoint.display());
+    assert!(checkpoint.starts_with(with.join("seed-member-7")), "{}", checkpoint.display());
     let refused = run_completion(tiny_case(), cfg.clone(), device.clone(), &with, Start::Fresh, &mut Silent);
     assert!(refused.is_err(), "a folder holding a member's checkpoint holds a run");
     let summary = finish(cfg.clone(), &with, Start::Resume("latest"));
-    // The run alone and the prior-only baseline, each straight through.
+    // The run alone, the run of seed 7 alone and the prior-only baseline, each straight through.
     cfg.run.prior_only_member = false;
+    cfg.run.member_seeds.clear();
     let alone = finish(cfg.clone(), &base.join("alone"), Start::Overwrite);
+    let mut seven = cfg.clone();
+    seven.run.seed = 7;
+    let seven = finish(seven, &base.join("seven"), Start::Overwrite);
     let mut baseline_cfg = cfg.clone();
     baseline_cfg.init.n2 = 0;
     baseline_cfg.init.n2_mode = ctadsa_core::config::SeedMode::None;
     let baseline = finish(baseline_cfg, &base.join("baseline"), Start::Overwrite);
     let member = summary.prior_only_member.as_ref().expect("the member is in the summary");
     assert_eq!(member.gaussians, baseline.gaussians, "the member is the prior-only baseline");
+    let seeded: Vec<(u64, usize)> = summary.seed_members.iter().map(|m| (m.seed, m.gaussians)).collect();
+    assert_eq!(seeded, [(7, seven.gaussians)], "the member of seed 7 is the run of seed 7");
     assert_eq!(summary.gaussians, alone.gaussians);
-    assert!(alone.prior_only_member.is_none() && baseline.n2 == 0 && alone.n2 > 0);
-    let (mean, a, b) =
-        (written_density(&with), written_density(&base.join("alone")), written_density(&base.join("baseline")));
-    assert_eq!((mean.len(), a.len()), (b.len(), b.len()), "one grid");
+    assert!(alone.prior_only_member.is_none() && alone.seed_members.is_empty());
+    assert!(baseline.n2 == 0 && alone.n2 > 0);
+    let [mean, a, s, b] = ["with", "alone", "seven", "baseline"].map(|d| written_density(&base.join(d)));
+    assert!([&a, &s, &b].iter().all(|d| d.len() == mean.len()), "one grid");
     let scale = a.iter().fold(0f32, |m, v| m.max(v.abs()));
-    let worst = mean.iter().zip(a.iter().zip(&b)).map(|(m, (x, y))| (m - 0.5 * (x + y)).abs()).fold(0f32, f32::max);
-    assert!(worst <= 1e-5 * scale, "the density is the mean of the run's and the member's: off by {worst} of {scale}");
-    assert!(a.iter().zip(&b).any(|(x, y)| (x - y).abs() > 0.01 * scale), "the two members differ");
+    let expected = |i: usize| 0.5 * (0.5 * (a[i] + s[i]) + b[i]);
+    let worst = mean.iter().enumerate().map(|(i, m)| (m - expected(i)).abs()).fold(0f32, f32::max);
+    assert!(worst <= 1e-5 * scale, "the image-seeded models' mean, then the member's: off by {worst} of {scale}");
+    assert!(a.iter().zip(&b).any(|(x, y)| (x - y).abs() > 0.01 * scale), "the run and the prior-only member differ");
+    assert!(a.iter().zip(&s).any(|(x, y)| (x - y).abs() > 0.01 * scale), "the two seeds differ");
 }
 
 /// Copies a folder tree.
@@ -598,7 +608,7 @@ fn no_ground_truth_steers_the_method() {
         }
         trainer.flush_logs().unwrap();
         let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("tiny-{name}-{}", std::process::id()));
-        let summary = write_outputs(&dir, c, &trainer, None).unwrap();
+        let summary = write_outputs(&dir, c, &trainer, &[], None).unwrap();
         // The working box comes from the views and the prior, yet holds the whole tree: it is
         // within a few scan steps of the case's box (the complete tree's box + 1 mm).
         let (inputs, case_box) = (trainer.working_box(), c.file.volume.bounds());

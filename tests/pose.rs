@@ -135,7 +135,7 @@ fn joint_refinement_on_a_perturbed_synthetic_case() {
         trainer.step().expect("step");
     }
     let out = dir.join("run");
-    let summary = write_outputs(&out, &case, &trainer, None).expect("outputs");
+    let summary = write_outputs(&out, &case, &trainer, &[], None).expect("outputs");
     assert!(out.join("poses.json").exists(), "poses.json written");
     let errors = summary.pose_errors.expect("the case knows its true poses");
     for e in &errors {

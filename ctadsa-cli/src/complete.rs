@@ -191,6 +191,13 @@ pub fn print_summary(summary: &RunSummary, out: &Path) {
             1e3 * t.densify_median_s
         );
     }
+    for m in &summary.seed_members {
+        let minutes = m.training_time.as_ref().map_or(0.0, |t| t.steps_s / 60.0);
+        println!(
+            "  member of seed {} (its density averaged in): {} Gaussians, training {minutes:.1} min",
+            m.seed, m.gaussians
+        );
+    }
     if let Some(m) = &summary.prior_only_member {
         let minutes = m.training_time.as_ref().map_or(0.0, |t| t.steps_s / 60.0);
         println!("  prior-only member (its density averaged in): {} Gaussians, training {minutes:.1} min", m.gaussians);

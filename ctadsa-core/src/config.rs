@@ -51,6 +51,13 @@ pub struct RunConfig {
     /// in the mean the ghosts fall under the level while what both find stays. Doubles the
     /// training time. Ignored when the run has no image seeds or no Gaussians on the prior.
     pub prior_only_member: bool,
+    /// Seeds of further image-seeded members: each is this configuration trained with that
+    /// `run.seed` (its field's weights, its image seeds' draw and its views' order change), in
+    /// `seed-member-<seed>/`. The image-seeded models' densities are averaged first, then with the
+    /// prior-only member's (when there is one): a ghost that one model grows and the others do
+    /// not falls to a fraction of its density, while what every model finds stays. Each member
+    /// adds one run's training time. At most 8, none equal to `run.seed` or to each other.
+    pub member_seeds: Vec<u64>,
 }
 
 /// Where the reconstruction's working box comes from.
@@ -74,6 +81,7 @@ impl Default for RunConfig {
             views: vec![],
             working_box: WorkingBoxSource::Inputs,
             prior_only_member: false,
+            member_seeds: vec![],
         }
     }
 }
@@ -279,6 +287,9 @@ impl Default for LossConfig {
         }
     }
 }
+
+/// The most further image-seeded members a config may ask for (`run.member_seeds`).
+pub const MAX_MEMBER_SEEDS: usize = 8;
 
 /// The most Gaussians (or seeds, or samples) a config may ask for: far beyond the paper's
 /// 500,000 cap, and small enough to fail with a message rather than an allocation abort.
@@ -680,6 +691,13 @@ impl Config {
             check(n <= MAX_GAUSSIANS, k, "must be at most 20,000,000")?;
         }
         check(self.run.iterations <= 10_000_000, "run.iterations", "must be at most 10,000,000")?;
+        let seeds = &self.run.member_seeds;
+        check(seeds.len() <= MAX_MEMBER_SEEDS, "run.member_seeds", "must list at most 8 seeds")?;
+        check(
+            seeds.iter().enumerate().all(|(i, s)| *s != self.run.seed && !seeds[..i].contains(s)),
+            "run.member_seeds",
+            "must differ from run.seed and from each other",
+        )?;
         check(
             self.output.voxel_mm.is_finite() && self.output.voxel_mm >= 0.0,
             "output.voxel_mm",
@@ -817,6 +835,22 @@ impl Config {
         toml::to_string_pretty(self).unwrap_or_default()
     }
 
+    /// The configurations of the further image-seeded members (`run.member_seeds`): this one
+    /// with each listed `run.seed`, and neither members nor a prior-only member of its own.
+    pub fn seed_members(&self) -> Vec<Config> {
+        self.run
+            .member_seeds
+            .iter()
+            .map(|&seed| {
+                let mut member = self.clone();
+                member.run.seed = seed;
+                member.run.member_seeds.clear();
+                member.run.prior_only_member = false;
+                member
+            })
+            .collect()
+    }
+
     /// The configuration of the prior-only member (`run.prior_only_member`): this one without
     /// image seeds. `None` when the member is off, the run has no image seeds (the member would
     /// be the run itself) or no Gaussians on the prior (the member would have none).
@@ -830,6 +864,7 @@ impl Config {
         member.init.n2_mode = SeedMode::None;
         member.densify.reseed_at.clear();
         member.run.prior_only_member = false;
+        member.run.member_seeds.clear();
         Some(member)
     }
 }
@@ -882,6 +917,28 @@ mod tests {
         assert!(unseeded.prior_only_member().is_none(), "without image seeds the member would be the run");
         let no_prior = Config::load(None, &["run.prior_only_member=true".into(), "init.n1=0".into()]).unwrap();
         assert!(no_prior.prior_only_member().is_none(), "without prior Gaussians the member would be empty");
+    }
+
+    #[test]
+    fn seed_members_differ_from_the_run_only_in_their_seed() {
+        assert!(Config::load(None, &[]).unwrap().seed_members().is_empty(), "none by default");
+        let sets = ["run.member_seeds=[7, 8]".into(), "run.prior_only_member=true".into()];
+        let on = Config::load(None, &sets).unwrap();
+        let members = on.seed_members();
+        assert_eq!(members.iter().map(|m| m.run.seed).collect::<Vec<_>>(), [7, 8]);
+        for member in &members {
+            assert!(member.seed_members().is_empty() && member.prior_only_member().is_none());
+            let mut same = member.clone();
+            same.run.seed = on.run.seed;
+            same.run.member_seeds = on.run.member_seeds.clone();
+            same.run.prior_only_member = true;
+            assert_eq!(same, on, "only the seed differs");
+        }
+        assert!(on.prior_only_member().unwrap().seed_members().is_empty(), "the prior-only member has none");
+        for bad in ["run.member_seeds=[42]", "run.member_seeds=[7, 7]", "run.member_seeds=[1,2,3,4,5,6,7,8,9]"] {
+            let err = Config::load(None, &[bad.into()]).unwrap_err().to_string();
+            assert!(err.contains("run.member_seeds"), "{bad}: {err}");
+        }
     }
 
     #[test]

@@ -67,6 +67,8 @@ pub struct RunSummary {
     pub training_time: Option<TrainingTime>,
     /// The prior-only member whose density was averaged in (`run.prior_only_member`).
     pub prior_only_member: Option<MemberSummary>,
+    /// The further image-seeded members averaged in (`run.member_seeds`), in that order.
+    pub seed_members: Vec<MemberSummary>,
     /// Scores of the completed surface (exact distances, `docs/METRICS.md`) when the case has
     /// ground truth.
     pub metrics: Option<RegionScores>,
@@ -87,13 +89,26 @@ pub struct RunSummary {
     pub pose_errors: Option<Vec<PoseError>>,
 }
 
-/// The prior-only member of a run (`run.prior_only_member`).
+/// A member of a run (`run.prior_only_member`, `run.member_seeds`).
 #[derive(Debug, Clone, Serialize)]
 pub struct MemberSummary {
+    /// Its `run.seed`.
+    pub seed: u64,
     pub gaussians: usize,
     pub final_loss: f64,
     /// Its training time (the run's own is [`RunSummary::training_time`]).
     pub training_time: Option<TrainingTime>,
+}
+
+impl MemberSummary {
+    fn of(member: &Trainer) -> Self {
+        Self {
+            seed: member.cfg().run.seed,
+            gaussians: member.model().len(),
+            final_loss: member.history().last().map_or(f64::NAN, |s| s.loss),
+            training_time: TrainingTime::of(member.history()),
+        }
+    }
 }
 
 /// The density field on a grid over the working box.
@@ -109,17 +124,35 @@ fn density_on(trainer: &Trainer, grid: Grid) -> Result<Volume<f32>> {
     Ok(Volume { grid, index_to_world: grid.index_to_world(), data: host_vec(vol) })
 }
 
-/// The density of the run, or with a prior-only member (`run.prior_only_member`) the mean of
-/// the run's and the member's densities on the run's grid.
-pub fn completion_density(trainer: &Trainer, member: Option<&Trainer>) -> Result<Volume<f32>> {
+/// The density of the run: the mean of the image-seeded models' densities (the run's and its
+/// `seed_members'`, `run.member_seeds`) on the run's grid, and with a prior-only `member`
+/// (`run.prior_only_member`) the mean of that and the member's.
+pub fn completion_density(
+    trainer: &Trainer,
+    seed_members: &[Trainer],
+    member: Option<&Trainer>,
+) -> Result<Volume<f32>> {
     let mut volume = density_volume(trainer)?;
+    let mut seeded = vec![];
+    for m in seed_members {
+        seeded.push(density_on(m, volume.grid)?.data);
+    }
+    mean_into(&mut volume.data, &seeded);
     if let Some(member) = member {
-        let other = density_on(member, volume.grid)?;
-        for (d, o) in volume.data.iter_mut().zip(&other.data) {
-            *d = 0.5 * (*d + o);
-        }
+        mean_into(&mut volume.data, &[density_on(member, volume.grid)?.data]);
     }
     Ok(volume)
+}
+
+/// `acc` becomes the voxel-wise mean of itself and `others` (each as long as `acc`).
+fn mean_into(acc: &mut [f32], others: &[Vec<f32>]) {
+    if others.is_empty() {
+        return;
+    }
+    let n = (others.len() + 1) as f32;
+    for (i, d) in acc.iter_mut().enumerate() {
+        *d = (*d + others.iter().map(|o| o[i]).sum::<f32>()) / n;
+    }
 }
 
 /// The iso-level: relative to the 99.9th percentile of the positive densities, or absolute.
@@ -227,14 +260,20 @@ fn write_poses(dir: &Path, case: &Case, trainer: &Trainer, prior: Option<&TriMes
     Ok(Some(pose_errors(&nominal, &learned, &truth, &points)?))
 }
 
-/// Writes the outputs of a run into `dir`; with a prior-only `member` the density, the surface
-/// and what comes from them are of the mean density ([`completion_density`]), the Gaussians
-/// and the renders the run's own.
-pub fn write_outputs(dir: &Path, case: &Case, trainer: &Trainer, member: Option<&Trainer>) -> Result<RunSummary> {
+/// Writes the outputs of a run into `dir`; with members (`seed_members`, a prior-only `member`)
+/// the density, the surface and what comes from them are of the mean density
+/// ([`completion_density`]), the Gaussians and the renders the run's own.
+pub fn write_outputs(
+    dir: &Path,
+    case: &Case,
+    trainer: &Trainer,
+    seed_members: &[Trainer],
+    member: Option<&Trainer>,
+) -> Result<RunSummary> {
     let cfg = trainer.cfg();
     write_file(&dir.join("config.toml"), cfg.to_toml().as_bytes())?;
     let gaussians = write_gaussians(dir, trainer)?;
-    let volume = completion_density(trainer, member)?;
+    let volume = completion_density(trainer, seed_members, member)?;
     write_nifti(&dir.join("density.nii.gz"), &volume, "ctadsa density (per mm)")?;
     let prior = case.prior_mesh()?;
     let surface = extract_completed_surface(dir, trainer, &volume, prior.as_ref())?;
@@ -284,11 +323,8 @@ pub fn write_outputs(dir: &Path, case: &Case, trainer: &Trainer, member: Option<
         field_densities: spread,
         field_constant: spread.is_some_and(|s| s.is_constant()),
         training_time: TrainingTime::of(trainer.history()),
-        prior_only_member: member.map(|m| MemberSummary {
-            gaussians: m.model().len(),
-            final_loss: m.history().last().map_or(f64::NAN, |s| s.loss),
-            training_time: TrainingTime::of(m.history()),
-        }),
+        prior_only_member: member.map(MemberSummary::of),
+        seed_members: seed_members.iter().map(MemberSummary::of).collect(),
         metrics: scored.as_ref().map(|r| r.scores),
         coverage: scored.as_ref().map(|r| r.coverage),
         paper_metrics: scored.as_ref().map(|r| r.paper),

@@ -58,6 +58,15 @@ impl Monitor for Silent {}
 /// (`run.prior_only_member`).
 pub const MEMBER_DIR: &str = "prior-only-member";
 
+/// The folder, inside a run's folder, of the image-seeded member trained with `seed`
+/// (`run.member_seeds`).
+pub fn seed_member_dir(seed: u64) -> String {
+    format!("{SEED_MEMBER_PREFIX}{seed}")
+}
+
+/// The start of the folder names of [`seed_member_dir`].
+const SEED_MEMBER_PREFIX: &str = "seed-member-";
+
 /// Whether `out` holds (part of) a run: a summary or a checkpoint (its own or its member's).
 pub fn holds_run(out: &Path) -> bool {
     out.join("summary.json").exists()
@@ -127,6 +136,11 @@ pub fn start_trainer(
             }
             remove(&ck_dir)?;
             remove(&out.join(MEMBER_DIR))?;
+            for entry in std::fs::read_dir(out).map_err(|e| CoreError::io(out, e))?.flatten() {
+                if entry.file_name().to_string_lossy().starts_with(SEED_MEMBER_PREFIX) {
+                    remove(&entry.path())?;
+                }
+            }
             Trainer::new(case, cfg.clone(), device)
         }
         Start::Resume("latest") => {
@@ -156,8 +170,9 @@ pub fn start_trainer(
 /// Runs the optimisation of `case` with `cfg` on `device` (an autodiff device) in `out`:
 /// checkpoints every `run.checkpoint_every` iterations and at the end, a checkpoint and
 /// [`Outcome::Interrupted`] when the monitor asks to stop, otherwise the outputs and the report.
-/// With `run.prior_only_member` the member is trained next, in `out/`[`MEMBER_DIR`] (resumed
-/// from its own checkpoints), and the outputs come from both.
+/// The members are trained next, each resumed from its own checkpoints: those of
+/// `run.member_seeds` in `out/`[`seed_member_dir`], then with `run.prior_only_member` the
+/// prior-only member in `out/`[`MEMBER_DIR`]; the outputs come from all of them.
 pub fn run_completion(
     case: &Case,
     cfg: Config,
@@ -172,27 +187,48 @@ pub fn run_completion(
         Trained::Done { trainer, warned } => (*trainer, warned),
         Trained::Stopped(checkpoint) => return Ok(Outcome::Interrupted { checkpoint }),
     };
+    let mut seed_members = Vec::new();
+    for member_cfg in cfg.seed_members() {
+        let dir = out.join(seed_member_dir(member_cfg.run.seed));
+        let note = format!("the image-seeded member of seed {} (run.member_seeds)", member_cfg.run.seed);
+        match train_member(case, &member_cfg, device.clone(), &dir, &note, monitor)? {
+            Trained::Done { trainer, .. } => seed_members.push(*trainer),
+            Trained::Stopped(checkpoint) => return Ok(Outcome::Interrupted { checkpoint }),
+        }
+    }
     let member = match cfg.prior_only_member() {
         Some(member_cfg) => {
             let dir = out.join(MEMBER_DIR);
-            let member_start = if holds_run(&dir) { Start::Resume("latest") } else { Start::Fresh };
-            monitor
-                .note(&format!("the prior-only member (run.prior_only_member: no image seeds) in {}", dir.display()));
-            std::fs::create_dir_all(&dir).map_err(|e| CoreError::io(&dir, e))?;
-            let member = start_trainer(case, &member_cfg, device, &dir, member_start, monitor)?;
-            match train(member, &member_cfg, &dir, monitor)? {
+            let note = "the prior-only member (run.prior_only_member: no image seeds)";
+            match train_member(case, &member_cfg, device, &dir, note, monitor)? {
                 Trained::Done { trainer, .. } => Some(*trainer),
                 Trained::Stopped(checkpoint) => return Ok(Outcome::Interrupted { checkpoint }),
             }
         }
         None => None,
     };
-    let summary = write_outputs(out, case, &trainer, member.as_ref())?;
+    let summary = write_outputs(out, case, &trainer, &seed_members, member.as_ref())?;
     if let Some(s) = summary.field_densities.filter(|_| summary.field_constant && !warned) {
         monitor.note(&collapse_warning(trainer.iteration(), s.p50));
     }
     write_report(out)?;
     Ok(Outcome::Finished(Box::new(summary)))
+}
+
+/// Trains (or resumes, when `dir` holds its checkpoints) a member of a run in `dir`.
+fn train_member(
+    case: &Case,
+    cfg: &Config,
+    device: Device,
+    dir: &Path,
+    what: &str,
+    monitor: &mut dyn Monitor,
+) -> Result<Trained> {
+    let start = if holds_run(dir) { Start::Resume("latest") } else { Start::Fresh };
+    monitor.note(&format!("{what} in {}", dir.display()));
+    std::fs::create_dir_all(dir).map_err(|e| CoreError::io(dir, e))?;
+    let member = start_trainer(case, cfg, device, dir, start, monitor)?;
+    train(member, cfg, dir, monitor)
 }
 
 /// Whether a training loop runs (then a stop request saves a checkpoint between steps; in

@@ -48,7 +48,7 @@ pub(super) fn case_fingerprint(case: &Case) -> String {
 }
 
 /// The configuration less what may change on resume (`[output]`, `run.iterations`,
-/// `run.checkpoint_every`, `run.prior_only_member`), as TOML.
+/// `run.checkpoint_every`, `run.prior_only_member`, `run.member_seeds`), as TOML.
 fn training_settings(cfg: &Config) -> String {
     let mut c = cfg.clone();
     c.output = Default::default();
@@ -56,6 +56,7 @@ fn training_settings(cfg: &Config) -> String {
     c.run.checkpoint_every = 0;
     // The member is a second model beside this one; it changes nothing of this one's training.
     c.run.prior_only_member = false;
+    c.run.member_seeds.clear();
     c.to_toml()
 }
 
