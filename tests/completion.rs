@@ -95,6 +95,7 @@ fn completion_recovers_the_missing_vessels() {
         "the completed surface must be much closer to the truth than the prior alone"
     );
     check_centreline(&s, "tiny-run");
+    check_finer_centreline(&s, "tiny-run");
     // The field's topology scores are in every summary of a case with a true tree.
     let t = s.topology.expect("topology scores");
     eprintln!("tiny topology: {t:?}");
@@ -123,6 +124,35 @@ fn check_centreline(s: &RunSummary, out: &str) {
     assert!(kinds.contains(&3) && kinds.contains(&4), "prior and new vessels marked: {kinds:?}");
     vtk_reads(&dir.join("centreline.vtp"), &swc.tree);
     check_confidence(c, &dir);
+}
+
+/// The finished run re-exported with its centreline traced on a grid of half the density's
+/// voxel (0.2 mm) and through the faint gaps between beads away from the prior: the surface and its scores stay as
+/// they were, the centreline is traced on the finer grid and still scores.
+fn check_finer_centreline(coarse: &RunSummary, out: &str) {
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("{out}-{}", std::process::id()));
+    let mesh = std::fs::read(dir.join("mesh.obj")).expect("mesh.obj");
+    let mut cfg = tiny_config(coarse.iterations);
+    cfg.output.centreline_voxel_mm = 0.2;
+    cfg.output.centreline_bridge_fraction = 0.7;
+    cfg.output.centreline_bridge_prior_clearance_mm = 1.0;
+    let outcome =
+        run_completion(tiny_case(), cfg, Device::ndarray().autodiff(), &dir, Start::Resume("latest"), &mut Silent)
+            .expect("re-export");
+    let Outcome::Finished(fine) = outcome else { panic!("not asked to stop") };
+    assert_eq!(std::fs::read(dir.join("mesh.obj")).expect("mesh.obj"), mesh, "the surface is unchanged");
+    assert_eq!(fine.metrics, coarse.metrics, "and so are its scores");
+    let per_mm = |c: &ctadsa_core::output::centreline::CentrelineSummary| c.nodes as f64 / c.length_mm;
+    eprintln!("tiny centreline, finer grid: {:?}", fine.centreline.scores);
+    assert!(
+        per_mm(&fine.centreline) > 1.5 * per_mm(&coarse.centreline),
+        "nodes per mm {:.2} on the 0.2 mm grid against {:.2} on the 0.4 mm one",
+        per_mm(&fine.centreline),
+        per_mm(&coarse.centreline)
+    );
+    let scores = fine.centreline.scores.expect("the case has a true tree");
+    assert!(scores.recall > 0.5 && scores.precision > 0.6, "{scores:?}");
+    assert!(scores.radius_error_mm < 0.4, "radius error {:.3} mm", scores.radius_error_mm);
 }
 
 /// Confidence of the new vessels: in [0, 1] for every branch of `branches.csv`, 1 on the

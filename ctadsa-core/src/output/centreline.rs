@@ -65,7 +65,12 @@ impl SolidPart<'_> {
 /// by at most a voxel: the voxel estimate steps and runs low on wide vessels, while the
 /// iso-surface of a vessel one voxel wide lies closer to its axis than the vessel's wall. A
 /// node within a voxel of the prior (inside, or nearer its surface than a voxel) is of type
-/// [`KIND_PRIOR_VESSEL`], any other of type [`KIND_NEW_VESSEL`]. With `centring`, the nodes in
+/// [`KIND_PRIOR_VESSEL`], any other of type [`KIND_NEW_VESSEL`]. On a solid finer than the
+/// density volume, `working_voxel_mm` (that volume's voxel) keeps both rules as they are there:
+/// the prior's margin is that voxel and no radius is below half of it (a finer grid traces
+/// thin vessels whole; it does not make a vessel near the prior new, nor resolve radii the
+/// density does not). `bridges` (voxels on the same grid) are traced through as part of the
+/// solid without being part of the extracted one. With `centring`, the nodes in
 /// the extracted solid and outside the prior's voxels are first centred on the extracted
 /// surface ([`centre_nodes`]: at most a voxel, in vessels up to four voxels wide).
 pub fn completed_centreline(
@@ -74,13 +79,18 @@ pub fn completed_centreline(
     prior_kept: bool,
     params: &SkeletonParams,
     centring: bool,
+    working_voxel_mm: f64,
+    bridges: Option<&Volume<u8>>,
 ) -> VesselTree {
-    let solid = match prior.filter(|_| prior_kept) {
-        Some(p) => Volume {
-            data: extracted.voxels.data.iter().zip(&p.voxels.data).map(|(&a, &b)| (a != 0 || b != 0) as u8).collect(),
-            ..extracted.voxels.clone()
-        },
-        None => extracted.voxels.clone(),
+    let kept_prior = prior.filter(|_| prior_kept);
+    let solid = Volume {
+        data: (0..extracted.voxels.data.len())
+            .map(|i| {
+                let set = |v: Option<&Volume<u8>>| v.is_some_and(|v| v.data[i] != 0);
+                (extracted.voxels.data[i] != 0 || set(kept_prior.map(|p| p.voxels)) || set(bridges)) as u8
+            })
+            .collect(),
+        ..extracted.voxels.clone()
     };
     let mut tree = skeletonize(&solid, params);
     let h = solid.grid.spacing_mm.iter().copied().fold(f64::INFINITY, f64::min);
@@ -110,11 +120,12 @@ pub fn completed_centreline(
         })
         .collect();
     for (n, (in_extracted, in_prior, to_prior)) in tree.nodes.iter_mut().zip(depths) {
+        n.radius_mm = n.radius_mm.max(0.5 * working_voxel_mm);
         let depth = in_extracted.max(in_prior);
         if depth > n.radius_mm && depth <= n.radius_mm + h {
             n.radius_mm = depth;
         }
-        n.kind = if to_prior <= h { KIND_PRIOR_VESSEL } else { KIND_NEW_VESSEL };
+        n.kind = if to_prior <= h.max(working_voxel_mm) { KIND_PRIOR_VESSEL } else { KIND_NEW_VESSEL };
     }
     tree
 }

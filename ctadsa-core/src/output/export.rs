@@ -31,8 +31,8 @@ use crate::method::training_time::TrainingTime;
 use crate::output::centreline::{CentrelineSummary, SolidPart, completed_centreline, write_centreline};
 use crate::output::confidence::{MESH_CONFIDENCE, mesh_without_doubtful, vertex_confidence, write_mesh_confidence};
 use crate::output::extraction::{
-    LevelScore, best_level, completed_solid, density_scale, faint_level_field, join_prior, keep_connected_to_prior,
-    prior_solid, score_levels,
+    LevelScore, best_level, bridged_solid, completed_solid, density_scale, faint_level_field, join_prior,
+    keep_connected_to_prior, prior_solid, score_levels,
 };
 use crate::output::plot::{PALETTE, Series, line_plot};
 use ctadsa_ops::readback::host_vec;
@@ -132,7 +132,15 @@ pub fn completion_density(
     seed_members: &[Trainer],
     member: Option<&Trainer>,
 ) -> Result<Volume<f32>> {
-    let mut volume = density_volume(trainer)?;
+    completion_density_on(density_volume(trainer)?, seed_members, member)
+}
+
+/// [`completion_density`] with the run's own density (on the grid it is to have) given.
+fn completion_density_on(
+    mut volume: Volume<f32>,
+    seed_members: &[Trainer],
+    member: Option<&Trainer>,
+) -> Result<Volume<f32>> {
     let mut seeded = vec![];
     for m in seed_members {
         seeded.push(density_on(m, volume.grid)?.data);
@@ -278,10 +286,12 @@ pub fn write_outputs(
     let prior = case.prior_mesh()?;
     let surface = extract_completed_surface(dir, trainer, &volume, prior.as_ref())?;
     let truth = CaseTruth::load(case)?;
+    let traced = traced_solid(trainer, seed_members, member, &volume, &surface, prior.as_ref())?;
     let (centreline, topology, vertex_confidence) = write_centreline_of(
         dir,
         &volume,
         &surface,
+        &traced,
         prior.as_ref(),
         &cfg.output,
         trainer.views().views(),
@@ -454,43 +464,122 @@ fn extract_completed_surface(
     })
 }
 
-/// The centreline of the completed solid, written and scored ([`write_centreline`]).
+/// The solid the centreline is traced in (`output.centreline_voxel_mm`): the voxels of the
+/// completion's density at or above the surface's level, their iso-surface and the prior's
+/// voxels, on the density volume's grid or on a finer one.
+struct TracedSolid {
+    above_level: Volume<u8>,
+    /// The iso-surface on the finer grid; `None` on the density volume's grid, where it is the
+    /// extracted surface.
+    surface: Option<TriMesh>,
+    prior_voxels: Option<Volume<u8>>,
+    /// With `output.centreline_bridge_fraction`: the extracted solid and the faint voxels
+    /// between its beads ([`bridged_solid`]).
+    bridges: Option<Volume<u8>>,
+}
+
+/// The [`TracedSolid`] of a run: on the density volume's grid, or with
+/// `output.centreline_voxel_mm` finer than its voxel, the completion's density voxelised again
+/// at that size and cut the way the surface was (the same level, and the faint vessels' local
+/// level at the same radius in mm).
+fn traced_solid(
+    trainer: &Trainer,
+    seed_members: &[Trainer],
+    member: Option<&Trainer>,
+    volume: &Volume<f32>,
+    surface: &CompletedSurface,
+    prior: Option<&TriMesh>,
+) -> Result<TracedSolid> {
+    let out = &trainer.cfg().output;
+    let voxel = out.centreline_voxel_mm;
+    let bridges = |density: &Volume<f32>, above: &Volume<u8>, prior_voxels: Option<&Volume<u8>>| {
+        (out.centreline_bridge_fraction > 0.0).then(|| {
+            let voxels = |mm: f64| (mm / density.grid.spacing_mm[0]).round() as usize;
+            let clear = (out.centreline_bridge_prior_clearance_mm > 0.0)
+                .then_some(prior_voxels)
+                .flatten()
+                .map(|p| (p, voxels(out.centreline_bridge_prior_clearance_mm)));
+            bridged_solid(
+                density,
+                above,
+                out.centreline_bridge_fraction * surface.level,
+                voxels(out.centreline_bridge_mm),
+                clear,
+            )
+        })
+    };
+    if voxel <= 0.0 || voxel >= volume.grid.spacing_mm[0] {
+        let above_level = completed_solid(surface.field.as_ref().unwrap_or(volume), surface.field_level, None);
+        let prior_voxels = surface.kept_prior.clone().or_else(|| prior.map(|p| prior_solid(p, volume)));
+        let bridges = bridges(volume, &above_level, prior_voxels.as_ref());
+        return Ok(TracedSolid { above_level, surface: None, prior_voxels, bridges });
+    }
+    let grid = Grid::covering(trainer.working_box(), voxel)?;
+    let density = completion_density_on(density_on(trainer, grid)?, seed_members, member)?;
+    let cut = match surface.faint_level {
+        Some(low) => {
+            let radius = (out.faint_radius_mm / voxel).round() as usize;
+            faint_level_field(&density, surface.level, low, out.faint_fraction, radius)
+        }
+        None => density.clone(),
+    };
+    let above_level = completed_solid(&cut, surface.field_level, None);
+    let fine_surface = extract_isosurface(&cut, surface.field_level as f32);
+    let prior_voxels = prior.map(|p| prior_solid(p, &density));
+    let bridges = bridges(&density, &above_level, prior_voxels.as_ref());
+    Ok(TracedSolid { above_level, surface: Some(fine_surface), prior_voxels, bridges })
+}
+
+/// The centreline of the completed solid ([`TracedSolid`]), written and scored
+/// ([`write_centreline`]); the topology scores on the density volume's grid.
+#[allow(clippy::too_many_arguments)]
 fn write_centreline_of(
     dir: &Path,
     volume: &Volume<f32>,
     surface: &CompletedSurface,
+    traced: &TracedSolid,
     prior: Option<&TriMesh>,
     out: &OutputConfig,
     views: &[ConeBeamView],
     truth: Option<&CaseTruth>,
 ) -> Result<(CentrelineSummary, Option<TopologyScores>, Vec<f64>)> {
-    let above_level = completed_solid(surface.field.as_ref().unwrap_or(volume), surface.field_level, None);
-    let voxelised;
-    let prior_voxels = match (&surface.kept_prior, prior) {
-        (Some(kept), _) => Some(kept),
-        (None, Some(p)) => {
-            voxelised = prior_solid(p, volume);
-            Some(&voxelised)
-        }
-        (None, None) => None,
-    };
-    let prior_part = prior.zip(prior_voxels).map(|(surface, voxels)| SolidPart { voxels, surface });
-    let extracted = SolidPart { voxels: &above_level, surface: &surface.extracted };
+    let prior_part = prior.zip(traced.prior_voxels.as_ref()).map(|(surface, voxels)| SolidPart { voxels, surface });
+    let extracted =
+        SolidPart { voxels: &traced.above_level, surface: traced.surface.as_ref().unwrap_or(&surface.extracted) };
+    let working_voxel = volume.grid.spacing_mm[0];
+    let traced_voxel = traced.above_level.grid.spacing_mm[0];
+    let defaults = SkeletonParams::default();
+    // The smallest component kept holds the same volume on either grid.
+    let min_component_voxels =
+        (defaults.min_component_voxels as f64 * (working_voxel / traced_voxel).powi(3)).round() as usize;
     let params = SkeletonParams {
         scale: out.centreline_scale,
         const_mm: out.centreline_const_mm,
         min_branch_mm: out.centreline_min_branch_mm,
-        ..SkeletonParams::default()
+        min_component_voxels,
+        ..defaults
     };
-    let tree =
-        completed_centreline(extracted, prior_part, surface.kept_prior.is_some(), &params, out.centreline_centring);
+    let tree = completed_centreline(
+        extracted,
+        prior_part,
+        surface.kept_prior.is_some(),
+        &params,
+        out.centreline_centring,
+        working_voxel,
+        traced.bridges.as_ref(),
+    );
     // The completed volume (inside the extracted surface, islands dropped as in the mesh, and the
     // prior's voxels where it is kept) against the voxels inside the true surface, both on the
     // density's grid (vessels thinner than its voxels break up alike in both), with the two
     // centrelines as skeletons.
     let topology = truth.and_then(|t| t.centreline.as_deref().map(|skeleton| (t, skeleton))).map(|(t, skeleton)| {
         let mut completed = crate::data::mesh::voxelize::voxelize_mesh(&surface.extracted, volume.grid);
-        if let Some(prior) = prior_voxels {
+        let working_prior = match (&surface.kept_prior, prior) {
+            (Some(kept), _) => Some(kept.clone()),
+            (None, Some(p)) if traced.surface.is_some() => Some(prior_solid(p, volume)),
+            (None, _) => traced.prior_voxels.clone(),
+        };
+        if let Some(prior) = working_prior {
             for (c, &p) in completed.data.iter_mut().zip(&prior.data) {
                 *c |= p;
             }

@@ -146,6 +146,31 @@ pub fn connected_to_solid(volume: &Volume<f32>, level: f64, solid: &Volume<u8>) 
     reached
 }
 
+/// `above` (voxels at or above the surface's level) joined with the voxels of `density ≥
+/// low_level` that lie within `reach` voxels (a cube of that half-width) of an `above` voxel
+/// and that a 26-connected path of such voxels links to one: the faint density between the
+/// pieces of a vessel that the level cuts into beads (hysteresis thresholding, bounded). With
+/// `keep_clear = (voxels, r)`, no voxel within `r` voxels of `voxels` (the prior) is added.
+pub fn bridged_solid(
+    density: &Volume<f32>,
+    above: &Volume<u8>,
+    low_level: f64,
+    reach: usize,
+    keep_clear: Option<(&Volume<u8>, usize)>,
+) -> Volume<u8> {
+    let grid = density.grid;
+    let near_of =
+        |v: &Volume<u8>, r: usize| max_filter(&v.data.iter().map(|&a| a as f32).collect::<Vec<_>>(), grid.dims, r);
+    let near = near_of(above, reach);
+    let blocked = keep_clear.map(|(v, r)| near_of(v, r));
+    let candidate =
+        |i: usize| near[i] > 0.0 && density.data[i] as f64 >= low_level && blocked.as_ref().is_none_or(|b| b[i] == 0.0);
+    let mut reached: Vec<bool> = above.data.iter().map(|&a| a != 0).collect();
+    let seeds: Vec<usize> = (0..grid.len()).filter(|&i| reached[i]).collect();
+    grid.flood_fill_26(&mut reached, seeds, candidate);
+    Volume { grid, index_to_world: above.index_to_world, data: reached.iter().map(|&r| r as u8).collect() }
+}
+
 /// Whether the voxel containing `p`, or one of its 26 neighbours, is set in `voxels`.
 fn near_set(volume: &Volume<f32>, voxels: &[bool], p: DVec3) -> bool {
     let g = volume.grid;
@@ -299,6 +324,39 @@ mod faint_tests {
                 }
             }
         }
+    }
+
+    /// Two beads of a vessel (density 1) with a faint gap between them (0.6) are joined at a
+    /// low level of 0.5 when the gap is within reach, not when it is fainter than the low level
+    /// or out of reach; faint density touching nothing above the level stays out; nothing is
+    /// added within the clearance of the prior.
+    #[test]
+    fn bridges_join_beads_through_faint_gaps_within_reach() {
+        // Along x: bead at 2..=4, gap 5..=7 at 0.6, bead 8..=10; a lone faint blob at x = 14.
+        let profile = |gap: f32| {
+            volume([17, 3, 3], move |i, j, k| match (i, j == 1 && k == 1) {
+                (2..=4 | 8..=10, true) => 1.0,
+                (5..=7, true) => gap,
+                (14, true) => 0.6,
+                _ => 0.0,
+            })
+        };
+        let set = |v: &Volume<u8>, i: usize| v.data[v.grid.index(i, 1, 1)] != 0;
+        let density = profile(0.6);
+        let above = completed_solid(&density, 0.9, None);
+        assert!(!set(&above, 6) && set(&above, 4) && set(&above, 8), "the level cuts the vessel into two beads");
+        let bridged = bridged_solid(&density, &above, 0.5, 2, None);
+        assert!((2..=10).all(|i| set(&bridged, i)), "the gap is bridged");
+        assert!(!set(&bridged, 14), "a faint blob linked to no bead stays out");
+        assert!(bridged.data.iter().zip(&above.data).all(|(&b, &a)| b >= a), "every voxel above the level stays");
+        assert!(!set(&bridged_solid(&density, &above, 0.5, 1, None), 6), "the middle of the gap is out of reach");
+        assert!(!set(&bridged_solid(&profile(0.4), &above, 0.5, 2, None), 6), "a gap below the low level stays open");
+        // With the voxels at x ≥ 6 kept clear of (within one voxel of a "prior" at x = 7), only
+        // x = 5 is added.
+        let prior = completed_solid(&volume([17, 3, 3], |i, _, _| (i == 7) as u8 as f32), 0.5, None);
+        let clear = bridged_solid(&density, &above, 0.5, 2, Some((&prior, 1)));
+        assert!(set(&clear, 5) && !set(&clear, 6) && !set(&clear, 7), "no bridge next to the prior");
+        assert!(set(&clear, 8), "the solid itself is kept next to the prior");
     }
 
     /// A thick vessel (peak 1) keeps the plain level; a faint one (peak 0.2, below the level
