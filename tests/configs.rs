@@ -58,7 +58,7 @@ fn shipped_configs_load_and_matrices_point_at_them() {
     assert_eq!(format!("{cpu:?}"), format!("{quick:?}"), "cpu.toml changes only the budget and the 3-view level");
     // The 512² configuration is the quick one with 1.5 times the iterations, its schedule
     // scaled with the run, the prior's projection subtracted for the image seeds and a second
-    // image-seeded member (both measured at 512² only), nothing else.
+    // image-seeded member (both measured at 512² only), the centreline's tracing, nothing else.
     let mut fine = Config::load(Some(&root.join("quick-512.toml")), &[]).unwrap();
     let scaled = |n: usize| n * 3 / 2;
     assert_eq!(fine.run.iterations, scaled(quick.run.iterations));
@@ -76,9 +76,15 @@ fn shipped_configs_load_and_matrices_point_at_them() {
     fine.init.subtract_prior = false;
     assert!(!fine.run.member_seeds.is_empty() && quick.run.member_seeds.is_empty());
     fine.run.member_seeds.clear();
+    // The centreline traced on a finer grid and across beads (an output of the 512² runs only).
+    assert!(fine.output.centreline_voxel_mm > 0.0 && quick.output.centreline_voxel_mm == 0.0);
+    assert!(fine.output.centreline_bridge_fraction > 0.0 && quick.output.centreline_bridge_fraction == 0.0);
+    fine.output.centreline_voxel_mm = quick.output.centreline_voxel_mm;
+    fine.output.centreline_bridge_fraction = quick.output.centreline_bridge_fraction;
+    fine.output.centreline_bridge_prior_clearance_mm = quick.output.centreline_bridge_prior_clearance_mm;
     assert_eq!(
         format!("{fine:?}"),
         format!("{quick:?}"),
-        "quick-512.toml changes only the budget, the seeds' prior and the members"
+        "quick-512.toml changes only the budget, the seeds' prior, the members and the centreline's tracing"
     );
 }
