@@ -287,16 +287,8 @@ pub fn write_outputs(
     let surface = extract_completed_surface(dir, trainer, &volume, prior.as_ref())?;
     let truth = CaseTruth::load(case)?;
     let traced = traced_solid(trainer, seed_members, member, &volume, &surface, prior.as_ref())?;
-    let (centreline, topology, vertex_confidence) = write_centreline_of(
-        dir,
-        &volume,
-        &surface,
-        &traced,
-        prior.as_ref(),
-        &cfg.output,
-        trainer.views().views(),
-        truth.as_ref(),
-    )?;
+    let (centreline, topology, vertex_confidence) =
+        write_centreline_of(dir, &volume, &surface, &traced, &cfg.output, trainer.views().views(), truth.as_ref())?;
     let trusted;
     let mesh = if cfg.output.min_confidence > 0.0 {
         trusted = mesh_without_doubtful(&surface.mesh, &vertex_confidence, cfg.output.min_confidence);
@@ -467,11 +459,13 @@ fn extract_completed_surface(
 /// The solid the centreline is traced in (`output.centreline_voxel_mm`): the voxels of the
 /// completion's density at or above the surface's level, their iso-surface and the prior's
 /// voxels, on the density volume's grid or on a finer one.
-struct TracedSolid {
+struct TracedSolid<'a> {
     above_level: Volume<u8>,
     /// The iso-surface on the finer grid; `None` on the density volume's grid, where it is the
     /// extracted surface.
     surface: Option<TriMesh>,
+    /// The prior mesh and its voxels on this grid.
+    prior: Option<&'a TriMesh>,
     prior_voxels: Option<Volume<u8>>,
     /// With `output.centreline_bridge_fraction`: the extracted solid and the faint voxels
     /// between its beads ([`bridged_solid`]).
@@ -482,14 +476,14 @@ struct TracedSolid {
 /// `output.centreline_voxel_mm` finer than its voxel, the completion's density voxelised again
 /// at that size and cut the way the surface was (the same level, and the faint vessels' local
 /// level at the same radius in mm).
-fn traced_solid(
+fn traced_solid<'a>(
     trainer: &Trainer,
     seed_members: &[Trainer],
     member: Option<&Trainer>,
     volume: &Volume<f32>,
     surface: &CompletedSurface,
-    prior: Option<&TriMesh>,
-) -> Result<TracedSolid> {
+    prior: Option<&'a TriMesh>,
+) -> Result<TracedSolid<'a>> {
     let out = &trainer.cfg().output;
     let voxel = out.centreline_voxel_mm;
     let bridges = |density: &Volume<f32>, above: &Volume<u8>, prior_voxels: Option<&Volume<u8>>| {
@@ -512,7 +506,7 @@ fn traced_solid(
         let above_level = completed_solid(surface.field.as_ref().unwrap_or(volume), surface.field_level, None);
         let prior_voxels = surface.kept_prior.clone().or_else(|| prior.map(|p| prior_solid(p, volume)));
         let bridges = bridges(volume, &above_level, prior_voxels.as_ref());
-        return Ok(TracedSolid { above_level, surface: None, prior_voxels, bridges });
+        return Ok(TracedSolid { above_level, surface: None, prior, prior_voxels, bridges });
     }
     let grid = Grid::covering(trainer.working_box(), voxel)?;
     let density = completion_density_on(density_on(trainer, grid)?, seed_members, member)?;
@@ -527,22 +521,21 @@ fn traced_solid(
     let fine_surface = extract_isosurface(&cut, surface.field_level as f32);
     let prior_voxels = prior.map(|p| prior_solid(p, &density));
     let bridges = bridges(&density, &above_level, prior_voxels.as_ref());
-    Ok(TracedSolid { above_level, surface: Some(fine_surface), prior_voxels, bridges })
+    Ok(TracedSolid { above_level, surface: Some(fine_surface), prior, prior_voxels, bridges })
 }
 
 /// The centreline of the completed solid ([`TracedSolid`]), written and scored
 /// ([`write_centreline`]); the topology scores on the density volume's grid.
-#[allow(clippy::too_many_arguments)]
 fn write_centreline_of(
     dir: &Path,
     volume: &Volume<f32>,
     surface: &CompletedSurface,
     traced: &TracedSolid,
-    prior: Option<&TriMesh>,
     out: &OutputConfig,
     views: &[ConeBeamView],
     truth: Option<&CaseTruth>,
 ) -> Result<(CentrelineSummary, Option<TopologyScores>, Vec<f64>)> {
+    let prior = traced.prior;
     let prior_part = prior.zip(traced.prior_voxels.as_ref()).map(|(surface, voxels)| SolidPart { voxels, surface });
     let extracted =
         SolidPart { voxels: &traced.above_level, surface: traced.surface.as_ref().unwrap_or(&surface.extracted) };
