@@ -510,15 +510,13 @@ fn traced_solid<'a>(
     }
     let grid = Grid::covering(trainer.working_box(), voxel)?;
     let density = completion_density_on(density_on(trainer, grid)?, seed_members, member)?;
-    let cut = match surface.faint_level {
-        Some(low) => {
-            let radius = (out.faint_radius_mm / voxel).round() as usize;
-            faint_level_field(&density, surface.level, low, out.faint_fraction, radius)
-        }
-        None => density.clone(),
-    };
-    let above_level = completed_solid(&cut, surface.field_level, None);
-    let fine_surface = extract_isosurface(&cut, surface.field_level as f32);
+    let faint = surface.faint_level.map(|low| {
+        let radius = (out.faint_radius_mm / voxel).round() as usize;
+        faint_level_field(&density, surface.level, low, out.faint_fraction, radius)
+    });
+    let cut = faint.as_ref().unwrap_or(&density);
+    let above_level = completed_solid(cut, surface.field_level, None);
+    let fine_surface = extract_isosurface(cut, surface.field_level as f32);
     let prior_voxels = prior.map(|p| prior_solid(p, &density));
     let bridges = bridges(&density, &above_level, prior_voxels.as_ref());
     Ok(TracedSolid { above_level, surface: Some(fine_surface), prior, prior_voxels, bridges })
