@@ -157,7 +157,29 @@ pub struct InitConfig {
     pub connected_max_views: usize,
     /// Image seeds at least this far apart (mm), the best-scored first: spreads `n2` along every
     /// supported vessel instead of piling it on the brightest. 0 = the `n2` best-scored voxels.
+    /// Re-seeding (`densify.reseed_at`) spaces its seeds the same way.
     pub seed_spacing_mm: f64,
+    /// `n2` for runs of two views or fewer (absent: `n2`). Two views' back-projections cross
+    /// in ghosts wherever two vessels share a detector row, and more seeds seed more of them:
+    /// on the 8 BraVa trees (512² views) 20,000 seeds 1 mm apart raised CD_ROI with 2 views by
+    /// 0.25 mm (worse on 4 of 4 trees) while 10,000 seeds 0.7 mm apart left it level with 3
+    /// views (docs/RESULTS.md, "Denser image seeds with three views").
+    pub n2_two_views: Option<usize>,
+    /// `seed_spacing_mm` for runs of two views or fewer (absent: `seed_spacing_mm`).
+    pub seed_spacing_mm_two_views: Option<f64>,
+}
+
+impl InitConfig {
+    /// The number of image seeds for a run of `views` views (`n2`, `n2_two_views`).
+    pub fn n2_for(&self, views: usize) -> usize {
+        self.n2_two_views.filter(|_| views <= 2).unwrap_or(self.n2)
+    }
+
+    /// The image seeds' spacing (mm) for a run of `views` views (`seed_spacing_mm`,
+    /// `seed_spacing_mm_two_views`).
+    pub fn seed_spacing_mm_for(&self, views: usize) -> f64 {
+        self.seed_spacing_mm_two_views.filter(|_| views <= 2).unwrap_or(self.seed_spacing_mm)
+    }
 }
 
 impl Default for InitConfig {
@@ -181,6 +203,8 @@ impl Default for InitConfig {
             connected_to_prior_mm: 3.0,
             connected_max_views: 2,
             seed_spacing_mm: 0.0,
+            n2_two_views: None,
+            seed_spacing_mm_two_views: None,
         }
     }
 }
@@ -692,6 +716,11 @@ impl Config {
         )?;
         check(self.init.knn >= 1, "init.knn", "must be ≥ 1")?;
         check((0.0..=100.0).contains(&self.init.seed_spacing_mm), "init.seed_spacing_mm", "must be in [0, 100] mm")?;
+        check(
+            self.init.seed_spacing_mm_two_views.is_none_or(|s| (0.0..=100.0).contains(&s)),
+            "init.seed_spacing_mm_two_views",
+            "must be in [0, 100] mm",
+        )?;
         check(self.init.n2_voxel_mm >= 0.0, "init.n2_voxel_mm", "must be ≥ 0")?;
         check(
             self.model.scale_min_voxels > 0.0 && self.model.scale_max_voxels > self.model.scale_min_voxels,
@@ -706,6 +735,7 @@ impl Config {
         for (k, n) in [
             ("init.n1", self.init.n1),
             ("init.n2", self.init.n2),
+            ("init.n2_two_views", self.init.n2_two_views.unwrap_or(0)),
             ("densify.max_gaussians", self.densify.max_gaussians),
             ("densify.reseed_n", self.densify.reseed_n),
             ("loss.pa_samples", self.loss.pa_samples),
@@ -897,7 +927,8 @@ impl Config {
     /// image seeds. `None` when the member is off, the run has no image seeds (the member would
     /// be the run itself) or no Gaussians on the prior (the member would have none).
     pub fn prior_only_member(&self) -> Option<Config> {
-        let seeded = self.init.n2 > 0 && self.init.n2_mode != SeedMode::None;
+        let seeded =
+            (self.init.n2 > 0 || self.init.n2_two_views.is_some_and(|n| n > 0)) && self.init.n2_mode != SeedMode::None;
         if !self.run.prior_only_member || !seeded || self.init.n1 == 0 {
             return None;
         }
@@ -941,6 +972,24 @@ mod tests {
         assert_eq!(out.level_mask_threshold_for(3, 0.05), 0.03);
         out.level_mask_threshold_two_views = 0.0;
         assert_eq!(out.level_mask_threshold_for(2, 0.05), 0.03, "0 falls back to the general threshold");
+    }
+
+    #[test]
+    fn two_view_runs_take_their_own_seed_count_and_spacing() {
+        let mut init = InitConfig { n2: 10_000, seed_spacing_mm: 0.7, ..InitConfig::default() };
+        assert_eq!((init.n2_for(2), init.seed_spacing_mm_for(2)), (10_000, 0.7), "absent: the general values");
+        init.n2_two_views = Some(3_000);
+        init.seed_spacing_mm_two_views = Some(0.0);
+        assert_eq!((init.n2_for(2), init.seed_spacing_mm_for(2)), (3_000, 0.0));
+        assert_eq!((init.n2_for(1), init.seed_spacing_mm_for(1)), (3_000, 0.0));
+        assert_eq!((init.n2_for(3), init.seed_spacing_mm_for(3)), (10_000, 0.7));
+        let cfg =
+            Config::load(None, &["init.n2_two_views=500".into(), "init.seed_spacing_mm_two_views=1.5".into()]).unwrap();
+        assert_eq!((cfg.init.n2_two_views, cfg.init.seed_spacing_mm_two_views), (Some(500), Some(1.5)));
+        let back: Config = toml::from_str(&cfg.to_toml()).unwrap();
+        assert_eq!(back, cfg, "round trip through TOML");
+        let err = Config::load(None, &["init.seed_spacing_mm_two_views=-1".into()]).unwrap_err().to_string();
+        assert!(err.contains("init.seed_spacing_mm_two_views"), "{err}");
     }
 
     #[test]

@@ -119,7 +119,8 @@ pub fn n2_seeds(
     voxel_mm: f64,
     seed: u64,
 ) -> Result<Vec<DVec3>> {
-    if cfg.n2 == 0 || cfg.n2_mode == SeedMode::None {
+    let n2 = cfg.n2_for(views.len());
+    if n2 == 0 || cfg.n2_mode == SeedMode::None {
         return Ok(Vec::new());
     }
     let h = if cfg.n2_voxel_mm > 0.0 { cfg.n2_voxel_mm } else { voxel_mm };
@@ -127,9 +128,9 @@ pub fn n2_seeds(
     let solid = prior.map(|p| prior_solid(p, grid));
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x4e32);
     if cfg.n2_mode == SeedMode::Uniform {
-        let mut out = Vec::with_capacity(cfg.n2);
+        let mut out = Vec::with_capacity(n2);
         let mut tries = 0usize;
-        while out.len() < cfg.n2 && tries < 1000 * cfg.n2 {
+        while out.len() < n2 && tries < 1000 * n2 {
             tries += 1;
             let p = DVec3::new(
                 rng.random_range(bounds.min_mm[0]..bounds.max_mm[0]),
@@ -191,7 +192,7 @@ pub fn n2_seeds(
     let occluded = occluded.filter(|_| intersect);
     let mut scored = back_project(&grid, views, &support, occluded.as_deref(), &values, exclude, intersect);
     // Not for the mask-only mode, which ignores the prior by design.
-    let (mut spacing_mm, mut n) = (cfg.seed_spacing_mm, cfg.n2);
+    let (mut spacing_mm, mut n) = (cfg.seed_spacing_mm_for(views.len()), n2);
     if let Some(s) = exclude {
         let to_prior = cfg.connected_to_prior_mm > 0.0 && views.len() <= cfg.connected_max_views;
         if to_prior && cfg.grow_claims_mm > 0.0 {
@@ -492,6 +493,21 @@ pub(crate) mod tests {
         let good = seeds.iter().filter(|p| near(p)).count();
         assert!(good as f64 >= 0.9 * seeds.len() as f64, "{good} of {} near a vessel", seeds.len());
         assert!(seeds.iter().any(|p| to_segment(*p, PRIOR.0, PRIOR.1) < 2.0), "the prior vessel is seeded too");
+    }
+
+    #[test]
+    fn two_view_runs_seed_their_own_count() {
+        let (_, views, images, bounds) = scene();
+        let cfg = InitConfig {
+            n2: 400,
+            n2_two_views: Some(50),
+            n2_mode: SeedMode::AllViewsIntersect,
+            ..InitConfig::default()
+        };
+        let three = n2_seeds(&cfg, &views, &images, None, &bounds, 0.4, 7).unwrap();
+        let two = n2_seeds(&cfg, &views[..2], &images[..2], None, &bounds, 0.4, 7).unwrap();
+        assert!(views.len() >= 3 && three.len() > 50, "{} seeds with {} views", three.len(), views.len());
+        assert_eq!(two.len(), 50);
     }
 
     /// A branch leaving the prior and a vessel floating free of it.

@@ -37,8 +37,8 @@ pub struct ResidualInputs<'a> {
 }
 
 /// Up to `n` new centres (mm) in the inputs' box where every view's residual exceeds `mask_threshold` ×
-/// the view's vessel level, outside the prior, at least `cfg.seed_spacing_mm` apart (0: the
-/// best-scored voxels), kept connected to the prior as the image seeds are
+/// the view's vessel level, outside the prior, spaced as the image seeds
+/// ([`InitConfig::seed_spacing_mm_for`] the number of views; 0: the best-scored voxels), kept connected to the prior as the image seeds are
 /// (`cfg.connected_to_prior_mm` for runs of at most `cfg.connected_max_views` views). With
 /// `occluded_support`, a view whose pixel lies in the prior's dilated projection supports a
 /// voxel where its target shows a vessel, if at least half of the views show residual.
@@ -101,7 +101,7 @@ pub fn residual_seeds(
         scored = connected_to_anchors(scored, &reachable, cfg.connected_to_prior_mm, |_| false);
     }
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x2e5eed);
-    Ok(best_centres(scored, cfg.seed_spacing_mm, n, inputs.voxel_mm, &mut rng))
+    Ok(best_centres(scored, cfg.seed_spacing_mm_for(inputs.views.len()), n, inputs.voxel_mm, &mut rng))
 }
 
 #[cfg(test)]
