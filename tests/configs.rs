@@ -76,6 +76,11 @@ fn shipped_configs_load_and_matrices_point_at_them() {
     fine.init.subtract_prior = false;
     assert!(!fine.run.member_seeds.is_empty() && quick.run.member_seeds.is_empty());
     fine.run.member_seeds.clear();
+    // Denser, spaced image seeds with three views; two-view runs keep quick's.
+    assert_eq!((fine.init.n2_for(2), fine.init.seed_spacing_mm_for(2)), (quick.init.n2, quick.init.seed_spacing_mm));
+    assert!(fine.init.n2_for(3) > quick.init.n2 && fine.init.seed_spacing_mm_for(3) > 0.0);
+    (fine.init.n2, fine.init.seed_spacing_mm) = (quick.init.n2, quick.init.seed_spacing_mm);
+    (fine.init.n2_two_views, fine.init.seed_spacing_mm_two_views) = (None, None);
     // The centreline traced on a finer grid and across beads (an output of the 512² runs only).
     assert!(fine.output.centreline_voxel_mm > 0.0 && quick.output.centreline_voxel_mm == 0.0);
     assert!(fine.output.centreline_bridge_fraction > 0.0 && quick.output.centreline_bridge_fraction == 0.0);
@@ -85,6 +90,6 @@ fn shipped_configs_load_and_matrices_point_at_them() {
     assert_eq!(
         format!("{fine:?}"),
         format!("{quick:?}"),
-        "quick-512.toml changes only the budget, the seeds' prior, the members and the centreline's tracing"
+        "quick-512.toml changes only the budget, the seeds' prior and count, the members and the centreline's tracing"
     );
 }
