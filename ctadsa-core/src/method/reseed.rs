@@ -36,10 +36,11 @@ pub struct ResidualInputs<'a> {
     pub drawn: Option<&'a Volume<u8>>,
 }
 
-/// Up to `n` new centres (mm) in the inputs' box where every view's residual exceeds `mask_threshold` ×
-/// the view's vessel level, outside the prior, spaced as the image seeds
-/// ([`InitConfig::seed_spacing_mm_for`] the number of views; 0: the best-scored voxels), kept connected to the prior as the image seeds are
-/// (`cfg.connected_to_prior_mm` for runs of at most `cfg.connected_max_views` views). With
+/// Up to `n` new centres (mm) in the inputs' box where every view's residual exceeds
+/// `mask_threshold` × the view's vessel level, outside the prior, spaced as the image seeds
+/// ([`InitConfig::seed_spacing_mm_for`] the number of views; 0: the best-scored voxels), kept
+/// connected to the prior as the image seeds are (`cfg.connected_to_prior_mm` for runs of at
+/// most `cfg.connected_max_views` views). With
 /// `occluded_support`, a view whose pixel lies in the prior's dilated projection supports a
 /// voxel where its target shows a vessel, if at least half of the views show residual.
 pub fn residual_seeds(
