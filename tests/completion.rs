@@ -657,6 +657,9 @@ fn no_ground_truth_steers_the_method() {
             let total = b.found + b.not_in_masks + b.behind_prior + b.not_seeded + b.misplaced + b.faded;
             assert!((total - 1.0).abs() < 1e-9, "classes sum to {total}");
             assert!((0.0..=b.behind_prior + 1e-12).contains(&b.behind_prior_seeded), "{b:?}");
+            assert!((0.0..=b.not_in_masks + 1e-12).contains(&b.not_in_masks_seeded), "{b:?}");
+            let unfound = 1.0 - b.found;
+            assert!((0.0..=unfound + 1e-12).contains(&b.never_seeded()), "{b:?}");
             assert!((b.found - recall).abs() < 1e-9, "found {} vs recall {recall}", b.found);
             eprintln!("tiny case after 30 iterations: {b:?}");
             // The new surface's bands cover all of it.

@@ -42,6 +42,7 @@ pub fn run(args: DiagnoseArgs) -> Result<()> {
     for (name, v) in [
         ("found (surface within radius + 0.5 mm)", b.found),
         ("not in every view's vessel mask", b.not_in_masks),
+        ("… of which an N2 seed lies within 1.5 mm", b.not_in_masks_seeded),
         ("behind the prior's dilated projection in some view", b.behind_prior),
         ("… of which an N2 seed lies within 1.5 mm", b.behind_prior_seeded),
         ("in every residual, but no N2 seed within 1.5 mm", b.not_seeded),
@@ -50,6 +51,7 @@ pub fn run(args: DiagnoseArgs) -> Result<()> {
     ] {
         println!("| {name} | {:.1} % |", 100.0 * v);
     }
+    println!("never seeded (not found, no N2 seed within 1.5 mm): {:.1} %", 100.0 * b.never_seeded());
     if let Some(ns) = &d.new_surface {
         let missing = ns.missing_area_mm2.map_or(String::new(), |a| format!(" (the true missing vessels: {a:.0} mm²)"));
         println!("\nnew surface (the completed surface off the prior): {:.0} mm²{missing}", ns.area_mm2);

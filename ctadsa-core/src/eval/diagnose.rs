@@ -46,7 +46,7 @@ pub const SEED_RADIUS_MM: f64 = 1.5;
 pub const ELSEWHERE_MM: f64 = 2.0;
 
 /// Fractions of the missing centreline length in each class (the classes sum to 1;
-/// `behind_prior_seeded` is a part of `behind_prior`).
+/// `not_in_masks_seeded` is a part of `not_in_masks`, `behind_prior_seeded` of `behind_prior`).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 pub struct LossBreakdown {
     pub found: f64,
@@ -59,8 +59,22 @@ pub struct LossBreakdown {
     /// (`init.subtract_prior` seeds there): seeded, and lost in training.
     #[serde(default)]
     pub behind_prior_seeded: f64,
+    /// The part of `not_in_masks` that has an N2 seed within [`SEED_RADIUS_MM`] all the same
+    /// (a seed on the vessel's brighter stretch nearby): seeded, and lost in training.
+    #[serde(default)]
+    pub not_in_masks_seeded: f64,
     /// Missing centreline length (mm).
     pub length_mm: f64,
+}
+
+impl LossBreakdown {
+    /// The missing centreline that is not found and has no N2 seed within [`SEED_RADIUS_MM`]:
+    /// what no image seed ever reached, whatever the reason.
+    pub fn never_seeded(&self) -> f64 {
+        (self.not_in_masks - self.not_in_masks_seeded)
+            + (self.behind_prior - self.behind_prior_seeded)
+            + self.not_seeded
+    }
 }
 
 /// The diagnosis of a run: where the missing vessels were lost and where its new surface lies.
@@ -138,6 +152,9 @@ pub fn diagnose(missing: &[Segment], inp: &DiagnoseInputs) -> LossBreakdown {
         let class = if to_completed[k] <= r + RECALL_SLACK_MM {
             &mut out.found
         } else if px.iter().zip(&masks).any(|(q, m)| !q.is_some_and(|q| m.data[q])) {
+            if to_seed[k] <= SEED_RADIUS_MM {
+                out.not_in_masks_seeded += w;
+            }
             &mut out.not_in_masks
         } else if px.iter().zip(inp.prior_silhouettes).any(|(q, m)| q.is_some_and(|q| m.data[q])) {
             if to_seed[k] <= SEED_RADIUS_MM {
@@ -164,6 +181,7 @@ pub fn diagnose(missing: &[Segment], inp: &DiagnoseInputs) -> LossBreakdown {
             &mut out.misplaced,
             &mut out.faded,
             &mut out.behind_prior_seeded,
+            &mut out.not_in_masks_seeded,
         ] {
             *f /= l;
         }
@@ -324,4 +342,27 @@ pub fn diagnose_run(case: &Case, run_dir: &Path) -> Result<Diagnosis> {
         truth: &truth_index,
     };
     Ok(Diagnosis { missing: diagnose(missing, &inputs), new_surface: new })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn never_seeded_counts_the_unfound_classes_less_their_seeded_parts() {
+        let b = LossBreakdown {
+            found: 0.6,
+            not_in_masks: 0.1,
+            not_in_masks_seeded: 0.04,
+            behind_prior: 0.2,
+            behind_prior_seeded: 0.05,
+            not_seeded: 0.03,
+            misplaced: 0.01,
+            faded: 0.06,
+            length_mm: 100.0,
+        };
+        // 0.06 faint + 0.15 behind the prior + 0.03 in every residual; the misplaced and faded
+        // points were seeded.
+        assert!((b.never_seeded() - 0.24).abs() < 1e-12, "{}", b.never_seeded());
+    }
 }
