@@ -660,6 +660,15 @@ fn no_ground_truth_steers_the_method() {
             assert!((0.0..=b.not_in_masks + 1e-12).contains(&b.not_in_masks_seeded), "{b:?}");
             let unfound = 1.0 - b.found;
             assert!((0.0..=unfound + 1e-12).contains(&b.never_seeded()), "{b:?}");
+            // The points add up to the classes: the found ones are those with the surface within
+            // the recall distance, and their length is the found share.
+            use ctadsa_core::eval::diagnose::PointClass;
+            let length: f64 = d.points.iter().map(|p| p.length_mm).sum();
+            assert!((length - b.length_mm).abs() <= 1e-9 * length.max(1.0), "{length} vs {}", b.length_mm);
+            let found: f64 = d.points.iter().filter(|p| p.class == PointClass::Found).map(|p| p.length_mm).sum();
+            assert!((found / length - b.found).abs() < 1e-9, "{} vs {}", found / length, b.found);
+            assert!(d.points.iter().all(|p| (p.class == PointClass::Found)
+                == (p.to_surface_mm <= p.radius_mm + ctadsa_core::eval::surface_metrics::RECALL_SLACK_MM)));
             assert!((b.found - recall).abs() < 1e-9, "found {} vs recall {recall}", b.found);
             eprintln!("tiny case after 30 iterations: {b:?}");
             // The new surface's bands cover all of it.

@@ -3,11 +3,12 @@
 
 use std::path::PathBuf;
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use clap::Args;
 use ctadsa_core::config::Config;
 use ctadsa_core::data::case::Case;
-use ctadsa_core::eval::diagnose::{diagnose_run, diagnose_seeds};
+use ctadsa_core::error::write_file;
+use ctadsa_core::eval::diagnose::{ClassifiedPoint, diagnose_run, diagnose_seeds};
 
 #[derive(Args)]
 pub struct DiagnoseArgs {
@@ -30,6 +31,11 @@ pub struct DiagnoseArgs {
     /// Write the breakdown as JSON here too.
     #[arg(long)]
     json: Option<PathBuf>,
+    /// With `--run`: write every classified point of the missing centreline here as CSV
+    /// (position and true radius in mm, the length it stands for, its class, the distances to
+    /// the nearest image seed and to the completed surface, the density over the iso-level).
+    #[arg(long, requires = "run")]
+    points: Option<PathBuf>,
 }
 
 pub fn run(args: DiagnoseArgs) -> Result<()> {
@@ -69,7 +75,29 @@ pub fn run(args: DiagnoseArgs) -> Result<()> {
             );
         }
     }
+    if let Some(path) = &args.points {
+        write_points(path, &d.points)?;
+    }
     write_json(args.json.as_deref(), &d)
+}
+
+fn write_points(path: &std::path::Path, points: &[ClassifiedPoint]) -> Result<()> {
+    let mut csv =
+        String::from("x_mm,y_mm,z_mm,radius_mm,length_mm,class,to_seed_mm,to_surface_mm,density_over_level\n");
+    for p in points {
+        let class = serde_json::to_value(p.class)?;
+        let [x, y, z] = p.position_mm;
+        csv += &format!(
+            "{x:.3},{y:.3},{z:.3},{:.3},{:.4},{},{:.3},{:.3},{:.4}\n",
+            p.radius_mm,
+            p.length_mm,
+            class.as_str().unwrap_or("?"),
+            p.to_seed_mm,
+            p.to_surface_mm,
+            p.density_over_level
+        );
+    }
+    Ok(write_file(path, csv.as_bytes())?)
 }
 
 fn seeds(case: &Case, args: &DiagnoseArgs) -> Result<()> {
@@ -95,8 +123,7 @@ fn seeds(case: &Case, args: &DiagnoseArgs) -> Result<()> {
 
 fn write_json(path: Option<&std::path::Path>, value: &impl serde::Serialize) -> Result<()> {
     if let Some(path) = path {
-        std::fs::write(path, serde_json::to_string_pretty(value)?)
-            .with_context(|| format!("cannot write {}", path.display()))?;
+        write_file(path, serde_json::to_string_pretty(value)?.as_bytes())?;
     }
     Ok(())
 }

@@ -84,6 +84,10 @@ pub struct Diagnosis {
     pub missing: LossBreakdown,
     /// `None` for a case without a prior.
     pub new_surface: Option<NewSurface>,
+    /// Every classified point of the missing centreline (not in the JSON: `ctadsa diagnose
+    /// --points` writes them as CSV).
+    #[serde(skip)]
+    pub points: Vec<ClassifiedPoint>,
 }
 
 /// What the diagnosis looks at.
@@ -138,38 +142,93 @@ fn explained_elsewhere(view: &ConeBeamView, p: DVec3, inp: &DiagnoseInputs) -> b
     })
 }
 
+/// The class of one missing centreline point (see the module's list).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum PointClass {
+    Found,
+    NotInMasks,
+    BehindPrior,
+    NotSeeded,
+    Misplaced,
+    Faded,
+}
+
+/// One classified point of the missing centreline.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ClassifiedPoint {
+    /// Position (mm, world) and the true radius there (mm).
+    pub position_mm: [f64; 3],
+    pub radius_mm: f64,
+    /// Centreline length the point stands for (mm).
+    pub length_mm: f64,
+    pub class: PointClass,
+    /// Distance (mm) to the nearest N2 seed and to the completed surface.
+    pub to_seed_mm: f64,
+    pub to_surface_mm: f64,
+    /// The run's density at the point over its iso-level.
+    pub density_over_level: f64,
+}
+
 /// Classifies the missing centreline (points every ≤ 0.1 mm).
 pub fn diagnose(missing: &[Segment], inp: &DiagnoseInputs) -> LossBreakdown {
+    diagnose_points(missing, inp).0
+}
+
+/// [`diagnose`] and the class of every point.
+pub fn diagnose_points(missing: &[Segment], inp: &DiagnoseInputs) -> (LossBreakdown, Vec<ClassifiedPoint>) {
     let masks: Vec<Mask> = inp.images.iter().map(|i| vessel_mask(i, inp.mask_threshold)).collect();
     let points = centreline_points(missing);
     let centres: Vec<DVec3> = points.iter().map(|p| p.position_mm).collect();
     let to_seed = nearest_distances(&centres, inp.seeds);
     let to_completed = inp.completed.distances(&centres);
     let mut out = LossBreakdown::default();
+    let mut classified = Vec::with_capacity(points.len());
     for (k, cp) in points.iter().enumerate() {
         let (p, r, w) = (cp.position_mm, cp.radius_mm, cp.length_mm);
         let px: Vec<Option<usize>> = inp.views.iter().map(|v| pixel(v, p)).collect();
         let class = if to_completed[k] <= r + RECALL_SLACK_MM {
-            &mut out.found
+            PointClass::Found
         } else if px.iter().zip(&masks).any(|(q, m)| !q.is_some_and(|q| m.data[q])) {
-            if to_seed[k] <= SEED_RADIUS_MM {
-                out.not_in_masks_seeded += w;
-            }
-            &mut out.not_in_masks
+            PointClass::NotInMasks
         } else if px.iter().zip(inp.prior_silhouettes).any(|(q, m)| q.is_some_and(|q| m.data[q])) {
-            if to_seed[k] <= SEED_RADIUS_MM {
-                out.behind_prior_seeded += w;
-            }
-            &mut out.behind_prior
+            PointClass::BehindPrior
         } else if !(to_seed[k] <= SEED_RADIUS_MM) {
-            &mut out.not_seeded
+            PointClass::NotSeeded
         } else if inp.views.iter().all(|v| explained_elsewhere(v, p, inp)) {
-            &mut out.misplaced
+            PointClass::Misplaced
         } else {
-            &mut out.faded
+            PointClass::Faded
         };
-        *class += w;
+        let seeded = to_seed[k] <= SEED_RADIUS_MM;
+        *match class {
+            PointClass::Found => &mut out.found,
+            PointClass::NotInMasks => {
+                if seeded {
+                    out.not_in_masks_seeded += w;
+                }
+                &mut out.not_in_masks
+            }
+            PointClass::BehindPrior => {
+                if seeded {
+                    out.behind_prior_seeded += w;
+                }
+                &mut out.behind_prior
+            }
+            PointClass::NotSeeded => &mut out.not_seeded,
+            PointClass::Misplaced => &mut out.misplaced,
+            PointClass::Faded => &mut out.faded,
+        } += w;
         out.length_mm += w;
+        classified.push(ClassifiedPoint {
+            position_mm: p.to_array(),
+            radius_mm: r,
+            length_mm: w,
+            class,
+            to_seed_mm: to_seed[k],
+            to_surface_mm: to_completed[k],
+            density_over_level: density_at(inp.density, p) / inp.level.max(f64::MIN_POSITIVE),
+        });
     }
     if out.length_mm > 0.0 {
         let l = out.length_mm;
@@ -186,7 +245,7 @@ pub fn diagnose(missing: &[Segment], inp: &DiagnoseInputs) -> LossBreakdown {
             *f /= l;
         }
     }
-    out
+    (out, classified)
 }
 
 /// Where the N2 seeds of a configuration fall, before any training: the missing centreline
@@ -341,7 +400,8 @@ pub fn diagnose_run(case: &Case, run_dir: &Path) -> Result<Diagnosis> {
         completed: &SurfaceIndex::new(&completed),
         truth: &truth_index,
     };
-    Ok(Diagnosis { missing: diagnose(missing, &inputs), new_surface: new })
+    let (missing, points) = diagnose_points(missing, &inputs);
+    Ok(Diagnosis { missing, new_surface: new, points })
 }
 
 #[cfg(test)]
