@@ -85,13 +85,12 @@ fn write_points(path: &std::path::Path, points: &[ClassifiedPoint]) -> Result<()
     let mut csv =
         String::from("x_mm,y_mm,z_mm,radius_mm,length_mm,class,to_seed_mm,to_surface_mm,density_over_level\n");
     for p in points {
-        let class = serde_json::to_value(p.class)?;
         let [x, y, z] = p.position_mm;
         csv += &format!(
             "{x:.3},{y:.3},{z:.3},{:.3},{:.4},{},{:.3},{:.3},{:.4}\n",
             p.radius_mm,
             p.length_mm,
-            class.as_str().unwrap_or("?"),
+            p.class.name(),
             p.to_seed_mm,
             p.to_surface_mm,
             p.density_over_level

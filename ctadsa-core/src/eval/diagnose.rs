@@ -154,6 +154,20 @@ pub enum PointClass {
     Faded,
 }
 
+impl PointClass {
+    /// The class's name, as in the JSON and the CSV of `ctadsa diagnose`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Found => "found",
+            Self::NotInMasks => "not-in-masks",
+            Self::BehindPrior => "behind-prior",
+            Self::NotSeeded => "not-seeded",
+            Self::Misplaced => "misplaced",
+            Self::Faded => "faded",
+        }
+    }
+}
+
 /// One classified point of the missing centreline.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct ClassifiedPoint {
@@ -170,13 +184,9 @@ pub struct ClassifiedPoint {
     pub density_over_level: f64,
 }
 
-/// Classifies the missing centreline (points every ≤ 0.1 mm).
-pub fn diagnose(missing: &[Segment], inp: &DiagnoseInputs) -> LossBreakdown {
-    diagnose_points(missing, inp).0
-}
-
-/// [`diagnose`] and the class of every point.
-pub fn diagnose_points(missing: &[Segment], inp: &DiagnoseInputs) -> (LossBreakdown, Vec<ClassifiedPoint>) {
+/// Classifies the missing centreline (points every ≤ 0.1 mm): the share of each class and the
+/// class of every point.
+pub fn diagnose(missing: &[Segment], inp: &DiagnoseInputs) -> (LossBreakdown, Vec<ClassifiedPoint>) {
     let masks: Vec<Mask> = inp.images.iter().map(|i| vessel_mask(i, inp.mask_threshold)).collect();
     let points = centreline_points(missing);
     let centres: Vec<DVec3> = points.iter().map(|p| p.position_mm).collect();
@@ -187,20 +197,20 @@ pub fn diagnose_points(missing: &[Segment], inp: &DiagnoseInputs) -> (LossBreakd
     for (k, cp) in points.iter().enumerate() {
         let (p, r, w) = (cp.position_mm, cp.radius_mm, cp.length_mm);
         let px: Vec<Option<usize>> = inp.views.iter().map(|v| pixel(v, p)).collect();
+        let seeded = to_seed[k] <= SEED_RADIUS_MM;
         let class = if to_completed[k] <= r + RECALL_SLACK_MM {
             PointClass::Found
         } else if px.iter().zip(&masks).any(|(q, m)| !q.is_some_and(|q| m.data[q])) {
             PointClass::NotInMasks
         } else if px.iter().zip(inp.prior_silhouettes).any(|(q, m)| q.is_some_and(|q| m.data[q])) {
             PointClass::BehindPrior
-        } else if !(to_seed[k] <= SEED_RADIUS_MM) {
+        } else if !seeded {
             PointClass::NotSeeded
         } else if inp.views.iter().all(|v| explained_elsewhere(v, p, inp)) {
             PointClass::Misplaced
         } else {
             PointClass::Faded
         };
-        let seeded = to_seed[k] <= SEED_RADIUS_MM;
         *match class {
             PointClass::Found => &mut out.found,
             PointClass::NotInMasks => {
@@ -400,7 +410,7 @@ pub fn diagnose_run(case: &Case, run_dir: &Path) -> Result<Diagnosis> {
         completed: &SurfaceIndex::new(&completed),
         truth: &truth_index,
     };
-    let (missing, points) = diagnose_points(missing, &inputs);
+    let (missing, points) = diagnose(missing, &inputs);
     Ok(Diagnosis { missing, new_surface: new, points })
 }
 
@@ -424,5 +434,19 @@ mod tests {
         // 0.06 faint + 0.15 behind the prior + 0.03 in every residual; the misplaced and faded
         // points were seeded.
         assert!((b.never_seeded() - 0.24).abs() < 1e-12, "{}", b.never_seeded());
+    }
+
+    #[test]
+    fn point_class_names_are_the_json_names() {
+        for c in [
+            PointClass::Found,
+            PointClass::NotInMasks,
+            PointClass::BehindPrior,
+            PointClass::NotSeeded,
+            PointClass::Misplaced,
+            PointClass::Faded,
+        ] {
+            assert_eq!(serde_json::to_value(c).unwrap(), c.name());
+        }
     }
 }
