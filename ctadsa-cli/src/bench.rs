@@ -235,6 +235,7 @@ pub fn bench_train(
         ("losses (L1, SSIM, FN, PA)", s.losses),
         ("backward (all)", s.backward),
         ("optimiser (Adam)", s.optimizer),
+        ("waiting for the device (the loss read)", s.wait),
     ] {
         println!("| {name} | {:.1} |", v * 1e3);
     }

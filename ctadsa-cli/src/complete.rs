@@ -122,7 +122,7 @@ impl Monitor for Terminal {
             for log in logged.iter().filter(|l| l.iteration.is_multiple_of(tenth) || l.iteration == self.first + 1) {
                 let t = log.times;
                 eprintln!(
-                    "[{:>6}/{}] {}; ms: field {:.0} render {:.0} losses {:.0} backward {:.0} optim {:.0} densify {:.0}",
+                    "[{:>6}/{}] {}; ms: field {:.0} render {:.0} losses {:.0} backward {:.0} optim {:.0} densify {:.0} wait {:.0}",
                     log.iteration,
                     self.iterations,
                     line(log),
@@ -131,7 +131,8 @@ impl Monitor for Terminal {
                     t.losses * 1e3,
                     t.backward * 1e3,
                     t.optimizer * 1e3,
-                    t.densify * 1e3
+                    t.densify * 1e3,
+                    t.wait * 1e3
                 );
             }
         }

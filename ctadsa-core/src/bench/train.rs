@@ -82,6 +82,7 @@ pub fn bench_train(
         sum.losses += t.losses;
         sum.backward += t.backward;
         sum.optimizer += t.optimizer;
+        sum.wait += t.wait;
     }
     trainer.sync();
     let per_step_s = start.elapsed().as_secs_f64() / steps as f64;
@@ -101,6 +102,7 @@ pub fn bench_train(
         backward: sum.backward / n,
         optimizer: sum.optimizer / n,
         densify: 0.0,
+        wait: sum.wait / n,
     };
     let device_timed = device_timed_pass(&mut trainer, settings.device_timed_steps, launches.is_some())?;
     let t_dens = Instant::now();

@@ -75,6 +75,7 @@ impl TrainingTime {
                 backward: stage(|t| t.backward),
                 optimizer: stage(|t| t.optimizer),
                 densify: stage(|t| t.densify),
+                wait: stage(|t| t.wait),
             },
             quarters,
             densify_calls: densify.len(),
@@ -128,5 +129,21 @@ mod tests {
         assert_eq!(TrainingTime::of(&[]), None);
         // Fewer steps than quarters: only the non-empty quarters.
         assert_eq!(TrainingTime::of(&history[..2]).unwrap().quarters.len(), 2);
+    }
+
+    /// On a GPU the stages only queue work and the loss read every few steps waits for it: the
+    /// wait is part of the run's time, and step logs written before it was recorded still load.
+    #[test]
+    fn the_wait_for_the_device_counts_and_old_step_logs_load_without_it() {
+        let mut history: Vec<StepLog> = (1..=4).map(|i| step(i, 100, 0.01, 0.0)).collect();
+        history[3].times.wait = 2.0;
+        let t = TrainingTime::of(&history).unwrap();
+        assert!((t.steps_s - (4.0 * 0.11 + 2.0)).abs() < 1e-12);
+        assert_eq!(t.median_stages_s.wait, 0.0);
+        let old = r#"{"iteration":3,"loss":0.5,"l1":0.1,"ssim":0.9,"fn_loss":0.0,"pa_loss":0.0,"gaussians":7,
+            "times":{"field":0.1,"render":0.2,"losses":0.0,"backward":0.3,"optimizer":0.1,"densify":0.0}}"#;
+        let log: StepLog = serde_json::from_str(old).unwrap();
+        assert_eq!(log.times.wait, 0.0);
+        assert!((log.times.total() - 0.7).abs() < 1e-12);
     }
 }

@@ -39,6 +39,12 @@ use setup::check_output_grid;
 pub use setup::{estimate_initial_density, prepare_views, run_working_box};
 
 /// Seconds spent per stage in one step.
+///
+/// On a GPU backend the stages from `field` to `optimizer` only queue device work and return;
+/// the device's time shows in `wait`, the step that reads the queued steps' losses back
+/// (every [`Trainer::log_every`] steps) blocking until the device has done them. On the CPU
+/// backends the stages do the work and `wait` is near 0. Their sum ([`StageTimes::total`]) is
+/// the step's wall time either way.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 pub struct StageTimes {
     pub field: f64,
@@ -47,12 +53,15 @@ pub struct StageTimes {
     pub backward: f64,
     pub optimizer: f64,
     pub densify: f64,
+    /// Blocked reading the losses back (absent in step logs written before it existed: 0).
+    #[serde(default)]
+    pub wait: f64,
 }
 
 impl StageTimes {
     /// The whole step (s).
     pub fn total(&self) -> f64 {
-        self.field + self.render + self.losses + self.backward + self.optimizer + self.densify
+        self.field + self.render + self.losses + self.backward + self.optimizer + self.densify + self.wait
     }
 }
 

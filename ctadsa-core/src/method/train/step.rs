@@ -207,7 +207,13 @@ impl Trainer {
         let log = StepLog { iteration: self.iteration, gaussians: self.model().len(), times, ..StepLog::default() };
         self.pending_logs.push((log, values));
         if self.pending_logs.len() >= self.log_every.max(1) {
+            // The read blocks until the device has done the queued steps: this step's `wait`.
+            let clock = Instant::now();
             self.flush_logs()?;
+            times.wait = clock.elapsed().as_secs_f64();
+            if let Some(last) = self.history.last_mut() {
+                last.times.wait = times.wait;
+            }
         }
         Ok(times)
     }
