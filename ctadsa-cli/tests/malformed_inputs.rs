@@ -158,6 +158,10 @@ fn out_of_range_config_values_are_refused_naming_the_key() {
         ("run.views=[0, 0]", "run.views"),
         ("densify.reseed_mask_threshold=nan", "densify.reseed_mask_threshold"),
         ("init.seed_spacing_mm=-1", "init.seed_spacing_mm"),
+        ("init.track_level=0", "init.track_level"),
+        ("init.track_start_mm=nan", "init.track_start_mm"),
+        ("init.track_turn_cost=-1", "init.track_turn_cost"),
+        ("init.track_max_points=2000000000", "init.track_max_points"),
     ] {
         refused(&dir, &["complete", "--case", &case, "--config", &config, "--out", "out/run", "--set", set], &[key]);
     }

@@ -167,6 +167,28 @@ pub struct InitConfig {
     pub n2_two_views: Option<usize>,
     /// `seed_spacing_mm` for runs of two views or fewer (absent: `seed_spacing_mm`).
     pub seed_spacing_mm_two_views: Option<f64>,
+    /// Runs of at most this many views add image seeds every 0.5 mm along the vessels tracked
+    /// from the prior through the views' residuals (`crate::method::tracking`: a track follows
+    /// the direction both views show best, with a cost for a turn either view sees and for a
+    /// change of either view's brightness, and stops on pixels another track claimed at another
+    /// depth). Residual intersect modes with a prior only. 0 = off.
+    pub track_max_views: usize,
+    /// A track goes on while the smaller of the views' residuals over its look-ahead, over the
+    /// vessel level, averages at least this (less its costs).
+    pub track_level: f64,
+    /// Tracks start at supported voxels at most this far (mm) from the prior (next to it the
+    /// subtracted residual is weakest).
+    pub track_start_mm: f64,
+    /// A direction's score loses this per unit of 1 − cos of the largest turn a view sees.
+    pub track_turn_cost: f64,
+    /// A direction's score loses this per unit of |ln| change of a view's brightness from the
+    /// track's so far.
+    pub track_brightness_cost: f64,
+    /// A track ends after this long (mm) on pixels another track claimed at another depth
+    /// (a pixel shows one vessel at one depth); 0 = no claims.
+    pub track_claimed_run_mm: f64,
+    /// Most tracked seeds (all tracks together).
+    pub track_max_points: usize,
 }
 
 impl InitConfig {
@@ -200,6 +222,13 @@ impl Default for InitConfig {
             grow_claims_mm: 0.0,
             grow_claims_n2: 20_000,
             grow_claims_spacing_mm: 0.7,
+            track_max_views: 0,
+            track_level: 0.3,
+            track_start_mm: 1.0,
+            track_turn_cost: 1.0,
+            track_brightness_cost: 1.0,
+            track_claimed_run_mm: 1.0,
+            track_max_points: 20_000,
             connected_to_prior_mm: 3.0,
             connected_max_views: 2,
             seed_spacing_mm: 0.0,
@@ -736,6 +765,7 @@ impl Config {
             ("init.n1", self.init.n1),
             ("init.n2", self.init.n2),
             ("init.n2_two_views", self.init.n2_two_views.unwrap_or(0)),
+            ("init.track_max_points", self.init.track_max_points),
             ("densify.max_gaussians", self.densify.max_gaussians),
             ("densify.reseed_n", self.densify.reseed_n),
             ("loss.pa_samples", self.loss.pa_samples),
@@ -756,6 +786,19 @@ impl Config {
             "must be ≥ 0 (0 = the case's voxel)",
         )?;
         check(self.init.n2_voxel_mm.is_finite(), "init.n2_voxel_mm", "must be finite")?;
+        check(
+            self.init.track_level.is_finite() && self.init.track_level > 0.0,
+            "init.track_level",
+            "must be finite and > 0 (× the vessel level)",
+        )?;
+        check((0.0..=10.0).contains(&self.init.track_start_mm), "init.track_start_mm", "must be in [0, 10] mm")?;
+        for (k, v) in [
+            ("init.track_turn_cost", self.init.track_turn_cost),
+            ("init.track_brightness_cost", self.init.track_brightness_cost),
+            ("init.track_claimed_run_mm", self.init.track_claimed_run_mm),
+        ] {
+            check(v.is_finite() && v >= 0.0, k, "must be finite and ≥ 0")?;
+        }
         check(
             (0.0..=100.0).contains(&self.init.connected_to_prior_mm),
             "init.connected_to_prior_mm",

@@ -11,6 +11,8 @@
 //!   Variants: union instead of intersection, uniform random, masks instead of residuals, and
 //!   (`init.grow_claims_mm`) the supported voxels grown from the prior one depth per pixel
 //!   (`crate::method::seed_growth`).
+//! - with `init.track_max_views`, the points of the vessels tracked from the prior through both
+//!   views' residuals besides (`crate::method::tracking`).
 //! - isotropic scales from the mean squared distance to the k nearest other centres, identity
 //!   rotations.
 
@@ -35,6 +37,7 @@ use crate::data::volume::{BoxMm, Grid, Volume};
 use crate::error::{CoreError, Result};
 use crate::method::model::{GaussianInit, ScaleBounds};
 use crate::method::seed_growth::grow_from;
+use crate::method::tracking::{Residuals, TrackSettings, track_from_prior};
 
 /// Pixel of a world point in a view (nearest pixel centre), if on the detector.
 #[inline]
@@ -191,6 +194,22 @@ pub fn n2_seeds(
     let exclude = if cfg.n2_mode == SeedMode::AllViewsIntersect { None } else { solid.as_ref() };
     let occluded = occluded.filter(|_| intersect);
     let mut scored = back_project(&grid, views, &support, occluded.as_deref(), &values, exclude, intersect);
+    // Tracked from the prior (before the growth or the connectivity filter thins the starts).
+    let tracked = match exclude {
+        Some(s) if intersect && views.len() <= cfg.track_max_views => {
+            let res = Residuals { views, images: &values, levels: &levels };
+            let settings = TrackSettings {
+                start_mm: cfg.track_start_mm,
+                level: cfg.track_level,
+                turn_cost: cfg.track_turn_cost,
+                brightness_cost: cfg.track_brightness_cost,
+                claimed_run_mm: cfg.track_claimed_run_mm,
+                max_points: cfg.track_max_points,
+            };
+            track_from_prior(&res, &scored, s, settings)
+        }
+        _ => Vec::new(),
+    };
     // Not for the mask-only mode, which ignores the prior by design.
     let (mut spacing_mm, mut n) = (cfg.seed_spacing_mm_for(views.len()), n2);
     if let Some(s) = exclude {
@@ -206,7 +225,9 @@ pub fn n2_seeds(
             scored = connected_to_anchors(scored, s, cfg.connected_to_prior_mm, |&(_, _, full)| full);
         }
     }
-    Ok(best_centres(scored, spacing_mm, n, h, &mut rng))
+    let mut centres = best_centres(scored, spacing_mm, n, h, &mut rng);
+    centres.extend(tracked);
+    Ok(centres)
 }
 
 /// The centres (mm) of the `n` best-scored voxels (of side `voxel_mm`), at least `spacing_mm`

@@ -11,6 +11,7 @@ pub mod model;
 pub mod pose;
 pub mod reseed;
 pub(crate) mod seed_growth;
+pub(crate) mod tracking;
 pub mod train;
 pub mod training_time;
 pub mod working_box;
