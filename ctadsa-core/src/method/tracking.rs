@@ -72,24 +72,25 @@ impl Residuals<'_> {
         })
     }
 
-    /// Per view, the mean brightness over `len_mm` ahead of `p` along `d` (every [`STEP_MM`]).
-    fn ahead_views(&self, p: DVec3, d: DVec3, len_mm: f64) -> Vec<f64> {
+    /// The mean over `len_mm` ahead of `p` along `d` (every [`STEP_MM`]) of the smaller of the
+    /// views' brightness; each view's own mean goes to `per_view` (one per view), from the same
+    /// samples.
+    fn look_ahead(&self, p: DVec3, d: DVec3, len_mm: f64, per_view: &mut [f64]) -> f64 {
         let n = (len_mm / STEP_MM).round().max(1.0) as usize;
-        (0..self.views.len())
-            .map(|vi| (1..=n).map(|k| self.brightness(vi, p + d * (k as f64 * STEP_MM))).sum::<f64>() / n as f64)
-            .collect()
-    }
-
-    /// The mean over `len_mm` ahead of `p` along `d` of the smaller of the views' brightness.
-    fn ahead(&self, p: DVec3, d: DVec3, len_mm: f64) -> f64 {
-        let n = (len_mm / STEP_MM).round().max(1.0) as usize;
-        (1..=n)
-            .map(|k| {
-                let q = p + d * (k as f64 * STEP_MM);
-                (0..self.views.len()).map(|vi| self.brightness(vi, q)).fold(f64::INFINITY, f64::min)
-            })
-            .sum::<f64>()
-            / n as f64
+        per_view.fill(0.0);
+        let mut smaller = 0.0;
+        for k in 1..=n {
+            let q = p + d * (k as f64 * STEP_MM);
+            let mut least = f64::INFINITY;
+            for (vi, sum) in per_view.iter_mut().enumerate() {
+                let b = self.brightness(vi, q);
+                *sum += b;
+                least = least.min(b);
+            }
+            smaller += least;
+        }
+        per_view.iter_mut().for_each(|v| *v /= n as f64);
+        smaller / n as f64
     }
 
     /// The largest, over the views, of 1 − cos of the angle between the projections of the
@@ -212,6 +213,7 @@ pub(crate) fn track_from_prior(
     let dirs = sphere_directions(DIRECTIONS);
     let cos_cone = CONE_DEG.to_radians().cos();
     let mut starts = BinaryHeap::new();
+    let mut scratch = vec![0.0; res.views.len()];
     for s in candidates {
         let d0 = dist(s.1);
         if d0 > reach_mm {
@@ -220,7 +222,7 @@ pub(crate) fn track_from_prior(
         let best = dirs
             .iter()
             .filter(|&&d| dist(s.1 + d * 2.0) > d0 + 1.0)
-            .map(|&d| (res.ahead(s.1, d, START_AHEAD_MM), d))
+            .map(|&d| (res.look_ahead(s.1, d, START_AHEAD_MM, &mut scratch), d))
             .max_by(|a, b| a.0.total_cmp(&b.0));
         if let Some((score, d)) = best.filter(|b| b.0 >= level) {
             starts.push(Start { score, p: s.1, d });
@@ -241,25 +243,28 @@ pub(crate) fn track_from_prior(
         let (mut p, mut d) = (p0, d0);
         let mut len = 0.0;
         let mut on_claimed: Vec<DVec3> = Vec::new();
-        // Each view's brightness along the track so far.
-        let mut seen = res.ahead_views(p0, d0, AHEAD_MM);
+        // Each view's brightness along the track so far, and a buffer for a direction's.
+        let mut seen = vec![0.0; res.views.len()];
+        res.look_ahead(p0, d0, AHEAD_MM, &mut seen);
+        let mut ahead = vec![0.0; res.views.len()];
         while len < MAX_TRACK_MM && out.len() < max_points {
-            let score = |c: DVec3| {
-                let change: f64 = res
-                    .ahead_views(p, c, AHEAD_MM)
-                    .iter()
-                    .zip(&seen)
-                    .map(|(a, b)| (a.max(0.1) / b.max(0.1)).ln().abs())
-                    .sum();
-                res.ahead(p, c, AHEAD_MM) - brightness_cost * change - turn_cost * res.turn(p, d, c)
-            };
-            let best = dirs
-                .iter()
-                .filter(|&&c| c.dot(d) >= cos_cone)
-                .map(|&c| (score(c), c))
-                .max_by(|a, b| a.0.total_cmp(&b.0));
+            let mut best: Option<(f64, DVec3)> = None;
+            for &c in dirs.iter().filter(|&&c| c.dot(d) >= cos_cone) {
+                let mut score = res.look_ahead(p, c, AHEAD_MM, &mut ahead);
+                if brightness_cost > 0.0 {
+                    let change: f64 = ahead.iter().zip(&seen).map(|(a, b)| (a.max(0.1) / b.max(0.1)).ln().abs()).sum();
+                    score -= brightness_cost * change;
+                }
+                if turn_cost > 0.0 {
+                    score -= turn_cost * res.turn(p, d, c);
+                }
+                if best.is_none_or(|(s, _)| score >= s) {
+                    best = Some((score, c));
+                }
+            }
             let Some((_, c)) = best.filter(|b| b.0 >= level) else { break };
-            for (m, r) in seen.iter_mut().zip(res.ahead_views(p, c, STEP_MM)) {
+            res.look_ahead(p, c, STEP_MM, &mut ahead);
+            for (m, r) in seen.iter_mut().zip(&ahead) {
                 *m = 0.7 * *m + 0.3 * r;
             }
             p += c * STEP_MM;
