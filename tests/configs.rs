@@ -58,7 +58,8 @@ fn shipped_configs_load_and_matrices_point_at_them() {
     assert_eq!(format!("{cpu:?}"), format!("{quick:?}"), "cpu.toml changes only the budget and the 3-view level");
     // The 512² configuration is the quick one with 1.5 times the iterations, its schedule
     // scaled with the run, the prior's projection subtracted for the image seeds and a second
-    // image-seeded member (both measured at 512² only), the centreline's tracing, nothing else.
+    // image-seeded member (both measured at 512² only), the centreline's tracing, the two-view
+    // level beside the prior, nothing else.
     let mut fine = Config::load(Some(&root.join("quick-512.toml")), &[]).unwrap();
     let scaled = |n: usize| n * 3 / 2;
     assert_eq!(fine.run.iterations, scaled(quick.run.iterations));
@@ -87,9 +88,19 @@ fn shipped_configs_load_and_matrices_point_at_them() {
     fine.output.centreline_voxel_mm = quick.output.centreline_voxel_mm;
     fine.output.centreline_bridge_fraction = quick.output.centreline_bridge_fraction;
     fine.output.centreline_bridge_prior_clearance_mm = quick.output.centreline_bridge_prior_clearance_mm;
+    // Two-view surfaces cut lower beside the prior (measured at 512² only); three-view runs
+    // match their masks at that threshold already.
+    assert!(fine.output.near_prior_mask_threshold > 0.0 && quick.output.near_prior_mask_threshold == 0.0);
+    assert_eq!(
+        fine.output.near_prior_mask_threshold,
+        fine.output.level_mask_threshold_for(3, fine.init.mask_threshold),
+        "no change with three views"
+    );
+    fine.output.near_prior_mask_threshold = quick.output.near_prior_mask_threshold;
     assert_eq!(
         format!("{fine:?}"),
         format!("{quick:?}"),
-        "quick-512.toml changes only the budget, the seeds' prior and count, the members and the centreline's tracing"
+        "quick-512.toml changes only the budget, the seeds' prior and count, the members, the centreline's tracing \
+         and the two-view level beside the prior"
     );
 }

@@ -162,6 +162,8 @@ fn out_of_range_config_values_are_refused_naming_the_key() {
         ("init.track_start_mm=nan", "init.track_start_mm"),
         ("init.track_turn_cost=-1", "init.track_turn_cost"),
         ("init.track_max_points=2000000000", "init.track_max_points"),
+        ("output.near_prior_mask_threshold=1.5", "output.near_prior_mask_threshold"),
+        ("output.near_prior_mm=nan", "output.near_prior_mm"),
     ] {
         refused(&dir, &["complete", "--case", &case, "--config", &config, "--out", "out/run", "--set", set], &[key]);
     }

@@ -492,6 +492,15 @@ pub struct OutputConfig {
     pub faint_mask_threshold: f64,
     pub faint_fraction: f64,
     pub faint_radius_mm: f64,
+    /// Roots of new vessels (`output::extraction::lower_level_near_prior`): with
+    /// `level_from_views`, within `near_prior_mm` of the prior the level is the one matched to
+    /// the views' masks at this threshold, where that is lower than the level (0 = off). With
+    /// two views (level masks at 0.07) 0.05 within 2 mm lowered CD_ROI and HD95_ROI on 8 of 8
+    /// BraVa trees (512²) and the false surface with them; the same threshold everywhere grows
+    /// ghosts far from the prior (docs/RESULTS.md, "Two views: seed reach, what training
+    /// keeps, and the iso-level").
+    pub near_prior_mask_threshold: f64,
+    pub near_prior_mm: f64,
     /// Centreline (`centreline.swc` / `.vtp`, TEASAR on the completed solid): each traced
     /// path covers the voxels within `centreline_scale` × the vessel radius +
     /// `centreline_const_mm` of it (larger: fewer, longer branches).
@@ -561,6 +570,8 @@ impl Default for OutputConfig {
             faint_mask_threshold: 0.02,
             faint_fraction: 0.7,
             faint_radius_mm: 1.0,
+            near_prior_mask_threshold: 0.0,
+            near_prior_mm: 2.0,
             centreline_scale: 1.5,
             centreline_const_mm: 1.0,
             centreline_min_branch_mm: 1.0,
@@ -920,6 +931,12 @@ impl Config {
             "must be in (0, 1]",
         )?;
         check((0.0..=10.0).contains(&self.output.faint_radius_mm), "output.faint_radius_mm", "must be in [0, 10] mm")?;
+        check(
+            (0.0..1.0).contains(&self.output.near_prior_mask_threshold),
+            "output.near_prior_mask_threshold",
+            "must be in [0, 1)",
+        )?;
+        check((0.0..=100.0).contains(&self.output.near_prior_mm), "output.near_prior_mm", "must be in [0, 100] mm")?;
         check(
             self.output.keep_prior_mm >= 0.0 && self.output.keep_prior_mm <= 100.0,
             "output.keep_prior_mm",

@@ -32,7 +32,7 @@ use crate::output::centreline::{CentrelineSummary, SolidPart, completed_centreli
 use crate::output::confidence::{MESH_CONFIDENCE, mesh_without_doubtful, vertex_confidence, write_mesh_confidence};
 use crate::output::extraction::{
     LevelScore, best_level, bridged_solid, completed_solid, density_scale, faint_level_field, join_prior,
-    keep_connected_to_prior, prior_solid, score_levels,
+    keep_connected_to_prior, lower_level_near_prior, prior_solid, score_levels,
 };
 use crate::output::plot::{PALETTE, Series, line_plot};
 use ctadsa_ops::readback::host_vec;
@@ -408,7 +408,24 @@ fn extract_completed_surface(
         let radius = (out.faint_radius_mm / volume.grid.spacing_mm[0]).round() as usize;
         (low, faint_level_field(volume, level, low, out.faint_fraction, radius))
     });
-    let (faint_level, field) = faint.map_or((None, None), |(low, field)| (Some(low), Some(field)));
+    let (faint_level, mut field) = faint.map_or((None, None), |(low, field)| (Some(low), Some(field)));
+    // Beside the prior, the lower level of `output.near_prior_mask_threshold`.
+    let near_solid = match (&solid, prior) {
+        (Some(s), _) => Some(std::borrow::Cow::Borrowed(s)),
+        (None, Some(p)) if out.near_prior_mask_threshold > 0.0 => Some(std::borrow::Cow::Owned(prior_solid(p, volume))),
+        _ => None,
+    };
+    if let Some(s) = near_solid.filter(|_| out.near_prior_mask_threshold > 0.0 && out.level_from_views) {
+        let scores =
+            score_levels(volume, trainer.views().views(), trainer.images(), out.near_prior_mask_threshold, Some(&s));
+        if let Some(near) = best_level(&scores).map(|b| b.level).filter(|&l| l < level) {
+            let f = field.get_or_insert_with(|| Volume {
+                data: volume.data.iter().map(|&d| d / level as f32).collect(),
+                ..volume.clone()
+            });
+            lower_level_near_prior(f, volume, &s, near, out.near_prior_mm);
+        }
+    }
     let field_level = if field.is_some() { 1.0 } else { level };
     let cut = field.as_ref().unwrap_or(volume);
     let raw_mesh = extract_isosurface(cut, field_level as f32);

@@ -20,6 +20,7 @@ use crate::data::mesh::distance::SurfaceIndex;
 use crate::data::mesh::voxelize::voxelize_mesh;
 use crate::data::projector::project_volume;
 use crate::data::volume::Volume;
+use crate::data::volume::edt::squared_edt;
 use crate::stats::percentile;
 
 /// Candidate levels, as fractions of the 99.9th percentile of the positive densities.
@@ -255,6 +256,27 @@ mod tests {
     }
 }
 
+/// Lowers the level of `field` (the density over its local level, cut at 1) to `near_level`
+/// (density units) at the voxels within `within_mm` of the `prior` solid (on the field's grid):
+/// there the field becomes at least `density / near_level`. Beside the prior the density
+/// draws the roots of the vessels that leave it; farther out, a lower level grows more ghosts
+/// than vessels.
+pub fn lower_level_near_prior(
+    field: &mut Volume<f32>,
+    density: &Volume<f32>,
+    prior: &Volume<u8>,
+    near_level: f64,
+    within_mm: f64,
+) {
+    let to_prior2 = squared_edt(&prior.map(|v| u8::from(v == 0)));
+    let near_level = near_level as f32;
+    for ((f, &d), &d2) in field.data.iter_mut().zip(&density.data).zip(&to_prior2) {
+        if d2 <= within_mm * within_mm {
+            *f = f.max(d / near_level);
+        }
+    }
+}
+
 /// The density divided by a local level, to extract at 1: the local level is `fraction` × the
 /// density's maximum within `radius` voxels (a cube), clamped to `[low, level]`. Around thick
 /// vessels (local maximum ≥ `level / fraction`) this is the plain level; a faint vessel alone
@@ -324,6 +346,25 @@ mod faint_tests {
                 }
             }
         }
+    }
+
+    /// A faint vessel (density 0.6, level 1) leaving a prior (the voxels with x < 3, 1 mm
+    /// voxels) is cut at the lower level 0.5 up to 2 mm from the prior and at 1 beyond.
+    #[test]
+    fn the_level_is_lowered_only_near_the_prior() {
+        let dims = [12, 5, 5];
+        let density = volume(dims, |_, j, k| if j == 2 && k == 2 { 0.6 } else { 0.0 });
+        let prior = Volume {
+            grid: density.grid,
+            index_to_world: density.index_to_world,
+            data: volume(dims, |i, _, _| if i < 3 { 1.0 } else { 0.0 }).data.iter().map(|&v| v as u8).collect(),
+        };
+        let mut field = density.clone();
+        lower_level_near_prior(&mut field, &density, &prior, 0.5, 2.0);
+        let on_axis: Vec<bool> = (0..dims[0]).map(|i| field.data[density.grid.index(i, 2, 2)] >= 1.0).collect();
+        // x = 0..2 is the prior itself, 3 and 4 lie 1 and 2 mm from it.
+        assert_eq!(on_axis, [[true; 5].as_slice(), &[false; 7]].concat(), "cut at 0.5 within 2 mm only");
+        assert!(field.data.iter().zip(&density.data).all(|(f, d)| f >= d), "never raises the level");
     }
 
     /// Two beads of a vessel (density 1) with a faint gap between them (0.6) are joined at a
