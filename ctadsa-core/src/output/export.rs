@@ -2,6 +2,7 @@
 //! renders beside targets with their difference (PNG), loss curve (PNG + CSV), the config used,
 //! and metrics (JSON) when the case has ground truth.
 
+use std::borrow::Cow;
 use std::path::Path;
 
 use burn::module::Module;
@@ -410,18 +411,17 @@ fn extract_completed_surface(
     });
     let (faint_level, mut field) = faint.map_or((None, None), |(low, field)| (Some(low), Some(field)));
     // Beside the prior, the lower level of `output.near_prior_mask_threshold`.
-    let near_solid = match (&solid, prior) {
-        (Some(s), _) => Some(std::borrow::Cow::Borrowed(s)),
-        (None, Some(p)) if out.near_prior_mask_threshold > 0.0 => Some(std::borrow::Cow::Owned(prior_solid(p, volume))),
-        _ => None,
-    };
-    if let Some(s) = near_solid.filter(|_| out.near_prior_mask_threshold > 0.0 && out.level_from_views) {
+    if out.near_prior_mask_threshold > 0.0
+        && out.level_from_views
+        && let Some(s) = solid.as_ref().map(Cow::Borrowed).or_else(|| prior.map(|p| Cow::Owned(prior_solid(p, volume))))
+    {
         let scores =
             score_levels(volume, trainer.views().views(), trainer.images(), out.near_prior_mask_threshold, Some(&s));
         if let Some(near) = best_level(&scores).map(|b| b.level).filter(|&l| l < level) {
             let f = field.get_or_insert_with(|| Volume {
+                grid: volume.grid,
+                index_to_world: volume.index_to_world,
                 data: volume.data.iter().map(|&d| d / level as f32).collect(),
-                ..volume.clone()
             });
             lower_level_near_prior(f, volume, &s, near, out.near_prior_mm);
         }
