@@ -274,6 +274,8 @@ pub struct SeedCoverage {
     pub seeds: usize,
     /// Share of the seeds within [`SEED_RADIUS_MM`] of the missing centreline.
     pub on_missing: f64,
+    /// Median distance (mm) of those seeds from the missing centreline (NaN for none).
+    pub on_missing_offset_mm: f64,
     /// Share of the seeds farther than [`ELSEWHERE_MM`] from every true vessel surface (ghosts).
     pub ghosts: f64,
 }
@@ -293,7 +295,7 @@ pub fn seed_coverage(
     let points = centreline_points(missing);
     let centres: Vec<DVec3> = points.iter().map(|p| p.position_mm).collect();
     let to_seed = nearest_distances(&centres, seeds);
-    let mut out = SeedCoverage { seeds: seeds.len(), ..SeedCoverage::default() };
+    let mut out = SeedCoverage { seeds: seeds.len(), on_missing_offset_mm: f64::NAN, ..SeedCoverage::default() };
     for (k, cp) in points.iter().enumerate() {
         let px: Vec<Option<usize>> = views.iter().map(|v| pixel(v, cp.position_mm)).collect();
         let class = if to_seed[k] <= SEED_RADIUS_MM {
@@ -317,7 +319,10 @@ pub fn seed_coverage(
     if !seeds.is_empty() {
         let n = seeds.len() as f64;
         let to_missing = nearest_distances(seeds, &centres);
-        out.on_missing = to_missing.iter().filter(|&&d| d <= SEED_RADIUS_MM).count() as f64 / n;
+        let mut near: Vec<f64> = to_missing.iter().copied().filter(|&d| d <= SEED_RADIUS_MM).collect();
+        out.on_missing = near.len() as f64 / n;
+        near.sort_by(f64::total_cmp);
+        out.on_missing_offset_mm = near.get(near.len() / 2).copied().unwrap_or(f64::NAN);
         out.ghosts = truth.distances(seeds).iter().filter(|&&d| d > ELSEWHERE_MM).count() as f64 / n;
     }
     out
