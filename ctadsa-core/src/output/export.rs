@@ -33,7 +33,7 @@ use crate::output::centreline::{CentrelineSummary, SolidPart, completed_centreli
 use crate::output::confidence::{MESH_CONFIDENCE, mesh_without_doubtful, vertex_confidence, write_mesh_confidence};
 use crate::output::extraction::{
     LevelScore, best_level, bridged_solid, completed_solid, density_scale, faint_level_field, join_prior,
-    keep_connected_to_prior, lower_level_near_prior, prior_solid, score_levels,
+    keep_connected_to_prior, level_field, prior_solid, score_levels,
 };
 use crate::output::plot::{PALETTE, Series, line_plot};
 use ctadsa_ops::readback::host_vec;
@@ -370,8 +370,10 @@ struct CompletedSurface {
     level: f64,
     level_scores: Vec<LevelScore>,
     faint_level: Option<f64>,
-    /// What was cut at `field_level` (the density, or with faint vessels the density over the
-    /// local level, at 1).
+    /// The level beside the prior (`output.near_prior_mask_threshold`), where it is lower.
+    near_prior_level: Option<f64>,
+    /// What was cut at `field_level` (the density, or with faint vessels or the near-prior
+    /// level the density over the local level, at 1).
     field: Option<Volume<f32>>,
     field_level: f64,
     islands_dropped: usize,
@@ -409,24 +411,19 @@ fn extract_completed_surface(
         let radius = (out.faint_radius_mm / volume.grid.spacing_mm[0]).round() as usize;
         (low, faint_level_field(volume, level, low, out.faint_fraction, radius))
     });
-    let (faint_level, mut field) = faint.map_or((None, None), |(low, field)| (Some(low), Some(field)));
+    let (faint_level, faint_field) = faint.map_or((None, None), |(low, field)| (Some(low), Some(field)));
     // Beside the prior, the lower level of `output.near_prior_mask_threshold`.
-    if out.near_prior_mask_threshold > 0.0
-        && out.level_from_views
-        && let Some(s) = solid.as_ref().map(Cow::Borrowed).or_else(|| prior.map(|p| Cow::Owned(prior_solid(p, volume))))
-    {
+    let mut near_prior_level = None;
+    let near_solid = (out.near_prior_mask_threshold > 0.0 && out.level_from_views)
+        .then(|| solid.as_ref().map(Cow::Borrowed).or_else(|| prior.map(|p| Cow::Owned(prior_solid(p, volume)))))
+        .flatten();
+    if let Some(s) = near_solid.as_deref() {
         let scores =
-            score_levels(volume, trainer.views().views(), trainer.images(), out.near_prior_mask_threshold, Some(&s));
-        if let Some(near) = best_level(&scores).map(|b| b.level).filter(|&l| l < level) {
-            let f = field.get_or_insert_with(|| Volume {
-                grid: volume.grid,
-                index_to_world: volume.index_to_world,
-                data: volume.data.iter().map(|&d| d / level as f32).collect(),
-            });
-            lower_level_near_prior(f, volume, &s, near, out.near_prior_mm);
-        }
+            score_levels(volume, trainer.views().views(), trainer.images(), out.near_prior_mask_threshold, Some(s));
+        near_prior_level = best_level(&scores).map(|b| b.level).filter(|&l| l < level);
     }
-    let field_level = if field.is_some() { 1.0 } else { level };
+    let near = near_solid.as_deref().zip(near_prior_level).map(|(s, l)| (s, l, out.near_prior_mm));
+    let (field, field_level) = level_field(volume, level, faint_field, near);
     let cut = field.as_ref().unwrap_or(volume);
     let raw_mesh = extract_isosurface(cut, field_level as f32);
     let (extracted, islands_dropped) = if out.min_island_mm2 > 0.0 {
@@ -465,6 +462,7 @@ fn extract_completed_surface(
         level,
         level_scores,
         faint_level,
+        near_prior_level,
         field,
         field_level,
         islands_dropped,
@@ -491,8 +489,8 @@ struct TracedSolid<'a> {
 
 /// The [`TracedSolid`] of a run: on the density volume's grid, or with
 /// `output.centreline_voxel_mm` finer than its voxel, the completion's density voxelised again
-/// at that size and cut the way the surface was (the same level, and the faint vessels' local
-/// level at the same radius in mm).
+/// at that size and cut the way the surface was (the same level, the faint vessels' local
+/// level at the same radius in mm, and the near-prior level within the same distance).
 fn traced_solid<'a>(
     trainer: &Trainer,
     seed_members: &[Trainer],
@@ -531,10 +529,12 @@ fn traced_solid<'a>(
         let radius = (out.faint_radius_mm / voxel).round() as usize;
         faint_level_field(&density, surface.level, low, out.faint_fraction, radius)
     });
-    let cut = faint.as_ref().unwrap_or(&density);
-    let above_level = completed_solid(cut, surface.field_level, None);
-    let fine_surface = extract_isosurface(cut, surface.field_level as f32);
     let prior_voxels = prior.map(|p| prior_solid(p, &density));
+    let near = prior_voxels.as_ref().zip(surface.near_prior_level).map(|(p, l)| (p, l, out.near_prior_mm));
+    let (field, cut_level) = level_field(&density, surface.level, faint, near);
+    let cut = field.as_ref().unwrap_or(&density);
+    let above_level = completed_solid(cut, cut_level, None);
+    let fine_surface = extract_isosurface(cut, cut_level as f32);
     let bridges = bridges(&density, &above_level, prior_voxels.as_ref());
     Ok(TracedSolid { above_level, surface: Some(fine_surface), prior, prior_voxels, bridges })
 }

@@ -277,6 +277,33 @@ pub fn lower_level_near_prior(
     }
 }
 
+/// What a surface is cut from, and at which level: `density` at `level`, or — with the faint
+/// vessels' field (`faint`, [`faint_level_field`]) or a lower level beside the prior (`near`:
+/// the prior's solid on the density's grid, the lower level, the distance in mm;
+/// [`lower_level_near_prior`], applied only where it is lower than `level`) — the density over
+/// its local level, at 1. The surface and the centreline's finer solid are cut alike.
+pub fn level_field(
+    density: &Volume<f32>,
+    level: f64,
+    faint: Option<Volume<f32>>,
+    near: Option<(&Volume<u8>, f64, f64)>,
+) -> (Option<Volume<f32>>, f64) {
+    let mut field = faint;
+    if let Some((prior, near_level, within_mm)) = near.filter(|&(_, l, _)| l < level) {
+        let f = field.get_or_insert_with(|| {
+            let level = level as f32;
+            Volume {
+                grid: density.grid,
+                index_to_world: density.index_to_world,
+                data: density.data.iter().map(|&d| d / level).collect(),
+            }
+        });
+        lower_level_near_prior(f, density, prior, near_level, within_mm);
+    }
+    let cut_level = if field.is_some() { 1.0 } else { level };
+    (field, cut_level)
+}
+
 /// The density divided by a local level, to extract at 1: the local level is `fraction` × the
 /// density's maximum within `radius` voxels (a cube), clamped to `[low, level]`. Around thick
 /// vessels (local maximum ≥ `level / fraction`) this is the plain level; a faint vessel alone
@@ -365,6 +392,33 @@ mod faint_tests {
         // x = 0..2 is the prior itself, 3 and 4 lie 1 and 2 mm from it.
         assert_eq!(on_axis, [[true; 5].as_slice(), &[false; 7]].concat(), "cut at 0.5 within 2 mm only");
         assert!(field.data.iter().zip(&density.data).all(|(f, d)| f >= d), "never raises the level");
+    }
+
+    /// Without a faint field or a lower level beside the prior the density is cut at the
+    /// level; with the near-prior level alone (no faint field), the field is cut at 1 and
+    /// draws the same solid as the density at the level away from the prior, and at the lower
+    /// level beside it; a near-prior level above the level changes nothing.
+    #[test]
+    fn the_level_field_cuts_like_the_level_away_from_the_prior() {
+        let dims = [12, 5, 5];
+        let density = volume(dims, |i, j, k| if j == 2 && k == 2 { 0.35 + 0.1 * i as f32 } else { 0.05 * k as f32 });
+        let prior = Volume {
+            grid: density.grid,
+            index_to_world: density.index_to_world,
+            data: volume(dims, |i, _, _| if i < 2 { 1.0 } else { 0.0 }).data.iter().map(|&v| v as u8).collect(),
+        };
+        let (none, at) = level_field(&density, 0.8, None, None);
+        assert!(none.is_none() && at == 0.8);
+        let (above, at) = level_field(&density, 0.8, None, Some((&prior, 0.9, 2.0)));
+        assert!(above.is_none() && at == 0.8, "a higher near level changes nothing");
+        let (field, at) = level_field(&density, 0.8, None, Some((&prior, 0.4, 2.0)));
+        let field = field.expect("a field where the near level is lower");
+        assert_eq!(at, 1.0);
+        let to_prior2 = squared_edt(&prior.map(|v| u8::from(v == 0)));
+        for ((&f, &d), &d2) in field.data.iter().zip(&density.data).zip(&to_prior2) {
+            let cut = if d2 <= 4.0 { 0.4 } else { 0.8 };
+            assert_eq!(f >= 1.0, d >= cut, "density {d} at {d2} mm² from the prior");
+        }
     }
 
     /// Two beads of a vessel (density 1) with a faint gap between them (0.6) are joined at a
