@@ -492,7 +492,7 @@ pub struct OutputConfig {
     pub faint_mask_threshold: f64,
     pub faint_fraction: f64,
     pub faint_radius_mm: f64,
-    /// Roots of new vessels (`output::extraction::lower_level_near_prior`): with
+    /// Roots of new vessels (`output::extraction::level_field`): with
     /// `level_from_views`, within `near_prior_mm` of the prior the level is the one matched to
     /// the views' masks at this threshold, where that is lower than the level (0 = off). With
     /// two views (level masks at 0.07) 0.05 within 2 mm lowered CD_ROI and HD95_ROI on 8 of 8

@@ -413,15 +413,17 @@ fn extract_completed_surface(
     });
     let (faint_level, faint_field) = faint.map_or((None, None), |(low, field)| (Some(low), Some(field)));
     // Beside the prior, the lower level of `output.near_prior_mask_threshold`.
-    let mut near_prior_level = None;
     let near_solid = (out.near_prior_mask_threshold > 0.0 && out.level_from_views)
         .then(|| solid.as_ref().map(Cow::Borrowed).or_else(|| prior.map(|p| Cow::Owned(prior_solid(p, volume)))))
         .flatten();
-    if let Some(s) = near_solid.as_deref() {
-        let scores =
-            score_levels(volume, trainer.views().views(), trainer.images(), out.near_prior_mask_threshold, Some(s));
-        near_prior_level = best_level(&scores).map(|b| b.level).filter(|&l| l < level);
-    }
+    let near_prior_level = near_solid
+        .as_deref()
+        .and_then(|s| {
+            let views = trainer.views().views();
+            best_level(&score_levels(volume, views, trainer.images(), out.near_prior_mask_threshold, Some(s)))
+        })
+        .map(|b| b.level)
+        .filter(|&l| l < level);
     let near = near_solid.as_deref().zip(near_prior_level).map(|(s, l)| (s, l, out.near_prior_mm));
     let (field, field_level) = level_field(volume, level, faint_field, near);
     let cut = field.as_ref().unwrap_or(volume);

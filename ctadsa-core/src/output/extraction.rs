@@ -261,7 +261,7 @@ mod tests {
 /// there the field becomes at least `density / near_level`. Beside the prior the density
 /// draws the roots of the vessels that leave it; farther out, a lower level grows more ghosts
 /// than vessels.
-pub fn lower_level_near_prior(
+fn lower_level_near_prior(
     field: &mut Volume<f32>,
     density: &Volume<f32>,
     prior: &Volume<u8>,
