@@ -18,8 +18,9 @@ pub struct DiagnoseArgs {
     /// The finished run folder of `ctadsa complete` on that case.
     #[arg(long, required_unless_present = "seeds")]
     run: Option<PathBuf>,
-    /// Only the image seeds of a configuration (`--config`, `--set`): which share of the missing
-    /// centreline gets one, and what the seeds hit. Seconds, no training.
+    /// Only the image seeds of a configuration (`--config`, `--set`; those of every model it
+    /// trains): which share of the missing centreline gets one, and what the seeds hit. Seconds,
+    /// no training.
     #[arg(long, conflicts_with = "run")]
     seeds: bool,
     /// The configuration of `--seeds` (default: the built-in one).

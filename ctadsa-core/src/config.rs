@@ -58,6 +58,12 @@ pub struct RunConfig {
     /// not falls to a fraction of its density, while what every model finds stays. Each member
     /// adds one run's training time. At most 8, none equal to `run.seed` or to each other.
     pub member_seeds: Vec<u64>,
+    /// Runs of at most this many views seed the prior-only member along the vessels tracked
+    /// from the prior as well (`init.track_*`, [`crate::method::tracking`]; its only image
+    /// seeds): a track follows a vessel out of the tree and rarely a ghost, so the member finds
+    /// more of the missing vessels while, in the mean, the image-seeded models' ghosts still
+    /// fall to half their density. 0 = the member has no image seeds.
+    pub member_tracks_max_views: usize,
 }
 
 /// Where the reconstruction's working box comes from.
@@ -82,6 +88,7 @@ impl Default for RunConfig {
             working_box: WorkingBoxSource::Inputs,
             prior_only_member: false,
             member_seeds: vec![],
+            member_tracks_max_views: 0,
         }
     }
 }
@@ -984,7 +991,8 @@ impl Config {
     }
 
     /// The configuration of the prior-only member (`run.prior_only_member`): this one without
-    /// image seeds. `None` when the member is off, the run has no image seeds (the member would
+    /// image seeds (with `run.member_tracks_max_views`, the tracked seeds its only ones) and
+    /// without re-seeding. `None` when the member is off, the run has no image seeds (the member would
     /// be the run itself) or no Gaussians on the prior (the member would have none).
     pub fn prior_only_member(&self) -> Option<Config> {
         let seeded =
@@ -994,10 +1002,16 @@ impl Config {
         }
         let mut member = self.clone();
         member.init.n2 = 0;
-        member.init.n2_mode = SeedMode::None;
+        if self.run.member_tracks_max_views > 0 {
+            member.init.n2_two_views = None;
+            member.init.track_max_views = self.run.member_tracks_max_views;
+        } else {
+            member.init.n2_mode = SeedMode::None;
+        }
         member.densify.reseed_at.clear();
         member.run.prior_only_member = false;
         member.run.member_seeds.clear();
+        member.run.member_tracks_max_views = 0;
         Some(member)
     }
 }
@@ -1064,6 +1078,14 @@ mod tests {
         same.init = on.init.clone();
         same.run.prior_only_member = true;
         assert_eq!(same, on, "only the seeds differ");
+        let tracked =
+            Config::load(None, &["run.prior_only_member=true".into(), "run.member_tracks_max_views=2".into()])
+                .unwrap()
+                .prior_only_member()
+                .expect("a member");
+        assert_eq!((tracked.init.n2_for(2), tracked.init.n2_for(3), tracked.init.n2_mode), (0, 0, on.init.n2_mode));
+        assert_eq!(tracked.init.track_max_views, 2, "its seeds are the tracks of runs of up to 2 views");
+        assert!(tracked.densify.reseed_at.is_empty() && tracked.run.member_tracks_max_views == 0);
         let unseeded = Config::load(None, &["run.prior_only_member=true".into(), "init.n2=0".into()]).unwrap();
         assert!(unseeded.prior_only_member().is_none(), "without image seeds the member would be the run");
         let no_prior = Config::load(None, &["run.prior_only_member=true".into(), "init.n1=0".into()]).unwrap();

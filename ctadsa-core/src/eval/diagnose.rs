@@ -6,7 +6,9 @@
 //!    so nothing image-driven can start there;
 //! 3. **behind the prior** — in the masks, but some view's pixel lies in the dilated projection
 //!    of the prior, which the residual removes: no N2 seed can start there;
-//! 4. **not seeded** — in every residual, yet no N2 seed within [`SEED_RADIUS_MM`];
+//! 4. **not seeded** — in every residual, yet no N2 seed within [`SEED_RADIUS_MM`] (the image
+//!    seeds of every model the run trains: its own, its seed members' and the prior-only
+//!    member's tracked ones);
 //! 5. **misplaced** — seeded, and in every view the ray through it crosses density above the
 //!    iso-level somewhere else (> [`ELSEWHERE_MM`] from the point and from every true vessel):
 //!    the views' signal was explained at a wrong depth;
@@ -21,7 +23,7 @@ use ctadsa_render::{ConeBeamView, ViewSet};
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
-use crate::config::Config;
+use crate::config::{Config, SeedMode};
 use crate::data::case::Case;
 use crate::data::case::images::Image;
 use crate::data::masks::{Mask, prior_solid, silhouettes, vessel_mask};
@@ -328,8 +330,9 @@ pub fn seed_coverage(
     out
 }
 
-/// A configuration's image seeds on a case: its views and images, the N2 seeds (mm) and the
-/// prior's dilated projections.
+/// A configuration's image seeds on a case: its views and images, the N2 seeds (mm) of every
+/// model it trains (the run's, its seed members' and the prior-only member's tracked ones) and
+/// the prior's dilated projections.
 struct Seeding {
     views: ViewSet,
     images: Vec<Image>,
@@ -344,11 +347,18 @@ fn seeds_of(case: &Case, cfg: &Config) -> Result<Seeding> {
     let working_box = run_working_box(case, cfg, &views, &images, prior.as_ref())?;
     let h = case.file.volume.voxel_mm;
     let bounds = ScaleBounds::from_voxel(h, cfg.model.scale_min_voxels, cfg.model.scale_max_voxels);
-    let init = initialise(&cfg.init, views.views(), &images, prior.as_ref(), &working_box, h, bounds, cfg.run.seed)?;
-    let seeds: Vec<DVec3> = init.gaussians.means[3 * init.n1..]
-        .chunks_exact(3)
-        .map(|c| DVec3::new(c[0] as f64, c[1] as f64, c[2] as f64))
-        .collect();
+    let mut models = vec![cfg.clone()];
+    models.extend(cfg.seed_members());
+    models.extend(cfg.prior_only_member().filter(|m| m.init.n2_mode != SeedMode::None));
+    let mut seeds: Vec<DVec3> = Vec::new();
+    for m in &models {
+        let init = initialise(&m.init, views.views(), &images, prior.as_ref(), &working_box, h, bounds, m.run.seed)?;
+        seeds.extend(
+            init.gaussians.means[3 * init.n1..]
+                .chunks_exact(3)
+                .map(|c| DVec3::new(c[0] as f64, c[1] as f64, c[2] as f64)),
+        );
+    }
     let prior_silhouettes: Vec<Mask> = match &prior {
         Some(p) => silhouettes(&prior_solid(p, Grid::covering(&working_box, h)?), views.views())
             .into_iter()

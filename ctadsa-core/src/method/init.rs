@@ -123,7 +123,9 @@ pub fn n2_seeds(
     seed: u64,
 ) -> Result<Vec<DVec3>> {
     let n2 = cfg.n2_for(views.len());
-    if n2 == 0 || cfg.n2_mode == SeedMode::None {
+    // With `n2 = 0` the tracked seeds alone (the prior-only member's, `run.member_tracks_max_views`).
+    let tracking = views.len() <= cfg.track_max_views;
+    if (n2 == 0 && !tracking) || cfg.n2_mode == SeedMode::None {
         return Ok(Vec::new());
     }
     let h = if cfg.n2_voxel_mm > 0.0 { cfg.n2_voxel_mm } else { voxel_mm };
@@ -196,7 +198,7 @@ pub fn n2_seeds(
     let mut scored = back_project(&grid, views, &support, occluded.as_deref(), &values, exclude, intersect);
     // Tracked from the prior (before the growth or the connectivity filter thins the starts).
     let tracked = match exclude {
-        Some(s) if intersect && views.len() <= cfg.track_max_views => {
+        Some(s) if intersect && tracking => {
             let res = Residuals { views, images: &values, levels: &levels };
             let settings = TrackSettings {
                 start_mm: cfg.track_start_mm,
@@ -502,6 +504,35 @@ pub(crate) mod tests {
         let cfg = InitConfig { n2: 3000, prior_dilation_px: 1, occluded_views_support: true, ..InitConfig::default() };
         let two = n2_seeds(&cfg, &views[..2], &images[..2], Some(&prior), &bounds, 0.4, 7).unwrap();
         assert_eq!(on(&two, near), 0, "not applied below occluded_min_views");
+    }
+
+    /// The prior-only member's seeds (`run.member_tracks_max_views`): with `n2 = 0` and
+    /// tracking on, the tracks alone, along the vessel that leaves the prior.
+    #[test]
+    fn with_no_seed_count_the_tracks_are_the_seeds() {
+        let (_, views, _, bounds) = scene();
+        let leaving = ([2.0, 0.0, 0.5], [6.0, 4.0, 11.0]);
+        let (prior, images) = prior_and_images(PRIOR, &[leaving], &views[..2], &bounds);
+        let cfg = InitConfig {
+            n2: 0,
+            track_max_views: 2,
+            prior_dilation_px: 1,
+            subtract_prior: true,
+            ..InitConfig::default()
+        };
+        let seeds = n2_seeds(&cfg, &views[..2], &images, Some(&prior), &bounds, 0.4, 7).unwrap();
+        let on = seeds.iter().filter(|p| to_segment(**p, leaving.0, leaving.1) < 1.5).count();
+        eprintln!("{on} of {} tracked seeds on the vessel", seeds.len());
+        assert!(seeds.len() >= 10, "only {} seeds", seeds.len());
+        assert_eq!(on, seeds.len(), "every seed on the vessel that leaves the prior");
+        let off = InitConfig { track_max_views: 0, ..cfg.clone() };
+        assert!(n2_seeds(&off, &views[..2], &images, Some(&prior), &bounds, 0.4, 7).unwrap().is_empty());
+        let three_views = n2_seeds(&cfg, &views, &images_of(&views, leaving, &bounds), Some(&prior), &bounds, 0.4, 7);
+        assert!(three_views.unwrap().is_empty(), "more views than track_max_views: none");
+    }
+
+    fn images_of(views: &[ConeBeamView], vessel: ([f64; 3], [f64; 3]), bounds: &BoxMm) -> Vec<Image> {
+        prior_and_images(PRIOR, &[vessel], views, bounds).1
     }
 
     #[test]

@@ -48,7 +48,8 @@ pub(super) fn case_fingerprint(case: &Case) -> String {
 }
 
 /// The configuration less what may change on resume (`[output]`, `run.iterations`,
-/// `run.checkpoint_every`, `run.prior_only_member`, `run.member_seeds`), as TOML.
+/// `run.checkpoint_every`, `run.prior_only_member`, `run.member_seeds`,
+/// `run.member_tracks_max_views`), as TOML.
 fn training_settings(cfg: &Config) -> String {
     let mut c = cfg.clone();
     c.output = Default::default();
@@ -57,6 +58,7 @@ fn training_settings(cfg: &Config) -> String {
     // The member is a second model beside this one; it changes nothing of this one's training.
     c.run.prior_only_member = false;
     c.run.member_seeds.clear();
+    c.run.member_tracks_max_views = 0;
     c.to_toml()
 }
 
