@@ -64,8 +64,9 @@ fn shipped_configs_load_and_matrices_point_at_them() {
         "cpu.toml changes only the budget and the 3-view level (and has no two-view level beside the prior)"
     );
     // The 512² configuration is the quick one with 1.5 times the iterations, its schedule
-    // scaled with the run, the prior's projection subtracted for the image seeds and a second
-    // image-seeded member (both measured at 512² only), the centreline's tracing, nothing else.
+    // scaled with the run, the prior's projection subtracted for the image seeds, a second
+    // image-seeded member and tracks for the prior-only member (measured at 512² only), the
+    // centreline's tracing, nothing else.
     let mut fine = Config::load(Some(&root.join("quick-512.toml")), &[]).unwrap();
     let scaled = |n: usize| n * 3 / 2;
     assert_eq!(fine.run.iterations, scaled(quick.run.iterations));
@@ -83,6 +84,10 @@ fn shipped_configs_load_and_matrices_point_at_them() {
     fine.init.subtract_prior = false;
     assert!(!fine.run.member_seeds.is_empty() && quick.run.member_seeds.is_empty());
     fine.run.member_seeds.clear();
+    // The prior-only member seeded along the tracks, with 2 and 3 views (measured at 512² only).
+    assert_eq!((fine.run.member_tracks_max_views, quick.run.member_tracks_max_views), (3, 0));
+    assert_eq!(fine.prior_only_member().unwrap().init.track_max_views, 3);
+    fine.run.member_tracks_max_views = 0;
     // Denser, spaced image seeds with three views; two-view runs keep quick's.
     assert_eq!((fine.init.n2_for(2), fine.init.seed_spacing_mm_for(2)), (quick.init.n2, quick.init.seed_spacing_mm));
     assert!(fine.init.n2_for(3) > quick.init.n2 && fine.init.seed_spacing_mm_for(3) > 0.0);
