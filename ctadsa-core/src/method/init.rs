@@ -527,12 +527,9 @@ pub(crate) mod tests {
         assert_eq!(on, seeds.len(), "every seed on the vessel that leaves the prior");
         let off = InitConfig { track_max_views: 0, ..cfg.clone() };
         assert!(n2_seeds(&off, &views[..2], &images, Some(&prior), &bounds, 0.4, 7).unwrap().is_empty());
-        let three_views = n2_seeds(&cfg, &views, &images_of(&views, leaving, &bounds), Some(&prior), &bounds, 0.4, 7);
+        let (_, three_images) = prior_and_images(PRIOR, &[leaving], &views, &bounds);
+        let three_views = n2_seeds(&cfg, &views, &three_images, Some(&prior), &bounds, 0.4, 7);
         assert!(three_views.unwrap().is_empty(), "more views than track_max_views: none");
-    }
-
-    fn images_of(views: &[ConeBeamView], vessel: ([f64; 3], [f64; 3]), bounds: &BoxMm) -> Vec<Image> {
-        prior_and_images(PRIOR, &[vessel], views, bounds).1
     }
 
     #[test]
