@@ -196,6 +196,9 @@ pub struct InitConfig {
     pub track_claimed_run_mm: f64,
     /// Most tracked seeds (all tracks together).
     pub track_max_points: usize,
+    /// Rounds of tracking: the first starts beside the prior, each further one beside the
+    /// tracks of the round before (the branches of new vessels, which never touch the prior).
+    pub track_rounds: usize,
 }
 
 impl InitConfig {
@@ -236,6 +239,7 @@ impl Default for InitConfig {
             track_brightness_cost: 1.0,
             track_claimed_run_mm: 1.0,
             track_max_points: 20_000,
+            track_rounds: 1,
             connected_to_prior_mm: 3.0,
             connected_max_views: 2,
             seed_spacing_mm: 0.0,
@@ -810,6 +814,7 @@ impl Config {
             "must be finite and > 0 (× the vessel level)",
         )?;
         check((0.0..=10.0).contains(&self.init.track_start_mm), "init.track_start_mm", "must be in [0, 10] mm")?;
+        check((1..=8).contains(&self.init.track_rounds), "init.track_rounds", "must be in 1..=8")?;
         for (k, v) in [
             ("init.track_turn_cost", self.init.track_turn_cost),
             ("init.track_brightness_cost", self.init.track_brightness_cost),

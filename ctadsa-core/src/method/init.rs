@@ -207,6 +207,7 @@ pub fn n2_seeds(
                 brightness_cost: cfg.track_brightness_cost,
                 claimed_run_mm: cfg.track_claimed_run_mm,
                 max_points: cfg.track_max_points,
+                rounds: cfg.track_rounds,
             };
             track_from_prior(&res, &scored, s, settings)
         }

@@ -9,6 +9,9 @@
 //! a track would slip onto a ghost, one view's projection turns onto another vessel). A pixel
 //! shows one vessel at one depth, so each track claims its pixels, and a track that runs on
 //! pixels another claimed at another depth for longer than a crossing stops there.
+//!
+//! The branches of a new vessel never touch the prior, so tracking may go in rounds: each round
+//! after the first starts tracks beside the tracks of the round before, heading away from them.
 
 use std::cmp::Ordering;
 use std::collections::{BinaryHeap, HashMap};
@@ -31,6 +34,11 @@ const START_AHEAD_MM: f64 = 3.0;
 const CONE_DEG: f64 = 35.0;
 /// A track ends within this distance (mm) of another track.
 const MERGE_MM: f64 = 0.7;
+/// A branch (a track of a later round) starts at a supported voxel at most this far (mm) from
+/// the tracks of the round before (and farther than [`MERGE_MM`]).
+const BRANCH_START_MM: f64 = 1.5;
+/// A branch's first direction lies within 60° of the way away from the nearest track point.
+const BRANCH_AWAY_COS: f64 = 0.5;
 /// A claim is another vessel's when it lies farther than this (mm) from the track.
 const CLAIM_TOLERANCE_MM: f64 = 1.5;
 /// Longest track (mm).
@@ -140,6 +148,25 @@ impl PointIndex {
         self.cells.entry(Self::cell(p)).or_default().push((p, track));
     }
 
+    /// The nearest point within `r_mm` of `p`, if any.
+    fn nearest(&self, p: DVec3, r_mm: f64) -> Option<DVec3> {
+        let (c, k) = (Self::cell(p), (r_mm / MERGE_MM).ceil() as i32);
+        let mut best: Option<(f64, DVec3)> = None;
+        for dx in -k..=k {
+            for dy in -k..=k {
+                for dz in -k..=k {
+                    for &(q, _) in self.cells.get(&(c + IVec3::new(dx, dy, dz))).into_iter().flatten() {
+                        let d = q.distance(p);
+                        if d <= r_mm && best.is_none_or(|b| d < b.0) {
+                            best = Some((d, q));
+                        }
+                    }
+                }
+            }
+        }
+        best.map(|b| b.1)
+    }
+
     /// Whether a point of a track other than `skip` lies within [`MERGE_MM`] of `p`.
     fn near(&self, p: DVec3, skip: Option<usize>) -> bool {
         let c = Self::cell(p);
@@ -196,108 +223,174 @@ pub(crate) struct TrackSettings {
     pub claimed_run_mm: f64,
     /// Most points over all tracks.
     pub max_points: usize,
+    /// Rounds: the first starts beside the prior, each further one beside the round before.
+    pub rounds: usize,
 }
 
 /// Points (mm, every [`STEP_MM`]) of the vessels tracked away from the `prior` solid, started
-/// at the `candidates` near it.
+/// at the `candidates` near it, and in later rounds (`settings.rounds`) at those near the
+/// tracks of the round before.
 pub(crate) fn track_from_prior(
     res: &Residuals,
     candidates: &[Scored],
     prior: &Volume<u8>,
     settings: TrackSettings,
 ) -> Vec<DVec3> {
-    let TrackSettings { start_mm: reach_mm, level, turn_cost, brightness_cost, claimed_run_mm, max_points } = settings;
-    let grid = prior.grid;
     let dist2 = squared_edt(&prior.map(|v| u8::from(v == 0)));
-    let dist = |p: DVec3| grid.index_at(p).map_or(f64::INFINITY, |i| dist2[i].sqrt());
-    let dirs = sphere_directions(DIRECTIONS);
-    let cos_cone = CONE_DEG.to_radians().cos();
-    let mut starts = BinaryHeap::new();
-    let mut scratch = vec![0.0; res.views.len()];
-    for s in candidates {
-        let d0 = dist(s.1);
-        if d0 > reach_mm {
-            continue;
+    let prior_dist = |p: DVec3| prior.grid.index_at(p).map_or(f64::INFINITY, |i| dist2[i].sqrt());
+    let tracker = Tracker {
+        res,
+        settings,
+        grid: prior.grid,
+        dirs: sphere_directions(DIRECTIONS),
+        cos_cone: CONE_DEG.to_radians().cos(),
+    };
+    let mut tracks = Tracks::default();
+    let mut starts = tracker.starts(candidates, |p| {
+        let d0 = prior_dist(p);
+        (d0 <= settings.start_mm).then_some(move |q: DVec3| prior_dist(q) > d0 + 1.0)
+    });
+    let mut round_begin = 0;
+    for round in 0..settings.rounds.max(1) {
+        if round > 0 {
+            // Branches start beside the tracks of the round before, heading away from them.
+            if round_begin == tracks.points.len() {
+                break; // the round before found nothing
+            }
+            let mut last = PointIndex::default();
+            tracks.points[round_begin..].iter().for_each(|&p| last.insert(p, 0));
+            round_begin = tracks.points.len();
+            starts = tracker.starts(candidates, |p| {
+                let q = last.nearest(p, BRANCH_START_MM).filter(|q| q.distance(p) > MERGE_MM)?;
+                let away = (p - q).normalize();
+                Some(move |r: DVec3| (r - p).normalize().dot(away) > BRANCH_AWAY_COS && prior_dist(r) > 0.0)
+            });
         }
-        let best = dirs
-            .iter()
-            .filter(|&&d| dist(s.1 + d * 2.0) > d0 + 1.0)
-            .map(|&d| (res.look_ahead(s.1, d, START_AHEAD_MM, &mut scratch), d))
-            .max_by(|a, b| a.0.total_cmp(&b.0));
-        if let Some((score, d)) = best.filter(|b| b.0 >= level) {
-            starts.push(Start { score, p: s.1, d });
-        }
-    }
-    let mut index = PointIndex::default();
-    let mut claims: HashMap<(usize, usize), (DVec3, usize)> = HashMap::new();
-    let mut out = Vec::new();
-    let mut track = 0usize;
-    while let Some(Start { p: p0, d: d0, .. }) = starts.pop() {
-        if out.len() >= max_points {
+        tracker.follow(std::mem::take(&mut starts), &prior_dist, &mut tracks);
+        if tracks.points.len() >= settings.max_points {
             break;
         }
-        if index.near(p0, None) {
-            continue; // already tracked
+    }
+    tracks.points
+}
+
+/// What every track reads: the views, the settings, the prior's grid and the directions tried.
+struct Tracker<'a> {
+    res: &'a Residuals<'a>,
+    settings: TrackSettings,
+    grid: crate::data::volume::Grid,
+    dirs: Vec<DVec3>,
+    cos_cone: f64,
+}
+
+/// The tracks so far: their points, a spatial index of them and their pixels' claims.
+#[derive(Default)]
+struct Tracks {
+    points: Vec<DVec3>,
+    index: PointIndex,
+    /// (view, pixel) → (the point, its track) that claimed it.
+    claims: HashMap<(usize, usize), (DVec3, usize)>,
+    count: usize,
+}
+
+impl Tracker<'_> {
+    /// The starts among the `candidates`, best look-ahead first: `allowed(p)` says whether a
+    /// track may start at `p` and, if so, which points 2 mm ahead count as heading away.
+    fn starts<F: Fn(DVec3) -> bool>(
+        &self,
+        candidates: &[Scored],
+        allowed: impl Fn(DVec3) -> Option<F>,
+    ) -> BinaryHeap<Start> {
+        let mut starts = BinaryHeap::new();
+        let mut scratch = vec![0.0; self.res.views.len()];
+        for s in candidates {
+            let Some(away) = allowed(s.1) else { continue };
+            let best = self
+                .dirs
+                .iter()
+                .filter(|&&d| away(s.1 + d * 2.0))
+                .map(|&d| (self.res.look_ahead(s.1, d, START_AHEAD_MM, &mut scratch), d))
+                .max_by(|a, b| a.0.total_cmp(&b.0));
+            if let Some((score, d)) = best.filter(|b| b.0 >= self.settings.level) {
+                starts.push(Start { score, p: s.1, d });
+            }
         }
-        track += 1;
-        let (mut p, mut d) = (p0, d0);
-        let mut len = 0.0;
-        let mut on_claimed: Vec<DVec3> = Vec::new();
-        // Each view's brightness along the track so far, and a buffer for a direction's.
-        let mut seen = vec![0.0; res.views.len()];
-        res.look_ahead(p0, d0, AHEAD_MM, &mut seen);
-        let mut ahead = vec![0.0; res.views.len()];
-        while len < MAX_TRACK_MM && out.len() < max_points {
-            let mut best: Option<(f64, DVec3)> = None;
-            for &c in dirs.iter().filter(|&&c| c.dot(d) >= cos_cone) {
-                let mut score = res.look_ahead(p, c, AHEAD_MM, &mut ahead);
-                if brightness_cost > 0.0 {
-                    let change: f64 = ahead.iter().zip(&seen).map(|(a, b)| (a.max(0.1) / b.max(0.1)).ln().abs()).sum();
-                    score -= brightness_cost * change;
-                }
-                if turn_cost > 0.0 {
-                    score -= turn_cost * res.turn(p, d, c);
-                }
-                if best.is_none_or(|(s, _)| score >= s) {
-                    best = Some((score, c));
-                }
-            }
-            let Some((_, c)) = best.filter(|b| b.0 >= level) else { break };
-            res.look_ahead(p, c, STEP_MM, &mut ahead);
-            for (m, r) in seen.iter_mut().zip(&ahead) {
-                *m = 0.7 * *m + 0.3 * r;
-            }
-            p += c * STEP_MM;
-            d = (d + c).normalize();
-            len += STEP_MM;
-            let back_at_prior = len > 2.0 && dist(p) <= 0.0;
-            let joined = len > 1.0 && index.near(p, Some(track));
-            if back_at_prior || joined || grid.index_at(p).is_none() {
+        starts
+    }
+
+    /// Follows a track from each of the `starts` (best first) that no track has reached yet.
+    fn follow(&self, mut starts: BinaryHeap<Start>, prior_dist: &impl Fn(DVec3) -> f64, tracks: &mut Tracks) {
+        let TrackSettings { level, turn_cost, brightness_cost, claimed_run_mm, max_points, .. } = self.settings;
+        let res = self.res;
+        while let Some(Start { p: p0, d: d0, .. }) = starts.pop() {
+            if tracks.points.len() >= max_points {
                 break;
             }
-            let rays = || res.views.iter().enumerate().filter_map(|(vi, v)| pixel_of(v, p).map(|px| (vi, px)));
-            let claimed_elsewhere = claimed_run_mm > 0.0
-                && rays()
-                    .any(|r| claims.get(&r).is_some_and(|&(q, t)| t != track && q.distance(p) > CLAIM_TOLERANCE_MM));
-            if claimed_elsewhere {
-                on_claimed.push(p);
-                if on_claimed.len() as f64 * STEP_MM > claimed_run_mm {
-                    break;
-                }
-                continue;
+            if tracks.index.near(p0, None) {
+                continue; // already tracked
             }
-            for q in on_claimed.drain(..).chain(std::iter::once(p)) {
-                for (vi, v) in res.views.iter().enumerate() {
-                    if let Some(px) = pixel_of(v, q) {
-                        claims.entry((vi, px)).or_insert((q, track));
+            tracks.count += 1;
+            let track = tracks.count;
+            let (mut p, mut d) = (p0, d0);
+            let mut len = 0.0;
+            let mut on_claimed: Vec<DVec3> = Vec::new();
+            // Each view's brightness along the track so far, and a buffer for a direction's.
+            let mut seen = vec![0.0; res.views.len()];
+            res.look_ahead(p0, d0, AHEAD_MM, &mut seen);
+            let mut ahead = vec![0.0; res.views.len()];
+            while len < MAX_TRACK_MM && tracks.points.len() < max_points {
+                let mut best: Option<(f64, DVec3)> = None;
+                for &c in self.dirs.iter().filter(|&&c| c.dot(d) >= self.cos_cone) {
+                    let mut score = res.look_ahead(p, c, AHEAD_MM, &mut ahead);
+                    if brightness_cost > 0.0 {
+                        let change: f64 =
+                            ahead.iter().zip(&seen).map(|(a, b)| (a.max(0.1) / b.max(0.1)).ln().abs()).sum();
+                        score -= brightness_cost * change;
+                    }
+                    if turn_cost > 0.0 {
+                        score -= turn_cost * res.turn(p, d, c);
+                    }
+                    if best.is_none_or(|(s, _)| score >= s) {
+                        best = Some((score, c));
                     }
                 }
-                index.insert(q, track);
-                out.push(q);
+                let Some((_, c)) = best.filter(|b| b.0 >= level) else { break };
+                res.look_ahead(p, c, STEP_MM, &mut ahead);
+                for (m, r) in seen.iter_mut().zip(&ahead) {
+                    *m = 0.7 * *m + 0.3 * r;
+                }
+                p += c * STEP_MM;
+                d = (d + c).normalize();
+                len += STEP_MM;
+                let back_at_prior = len > 2.0 && prior_dist(p) <= 0.0;
+                let joined = len > 1.0 && tracks.index.near(p, Some(track));
+                if back_at_prior || joined || self.grid.index_at(p).is_none() {
+                    break;
+                }
+                let rays = || res.views.iter().enumerate().filter_map(|(vi, v)| pixel_of(v, p).map(|px| (vi, px)));
+                let claimed_elsewhere = claimed_run_mm > 0.0
+                    && rays().any(|r| {
+                        tracks.claims.get(&r).is_some_and(|&(q, t)| t != track && q.distance(p) > CLAIM_TOLERANCE_MM)
+                    });
+                if claimed_elsewhere {
+                    on_claimed.push(p);
+                    if on_claimed.len() as f64 * STEP_MM > claimed_run_mm {
+                        break;
+                    }
+                    continue;
+                }
+                for q in on_claimed.drain(..).chain(std::iter::once(p)) {
+                    for (vi, v) in res.views.iter().enumerate() {
+                        if let Some(px) = pixel_of(v, q) {
+                            tracks.claims.entry((vi, px)).or_insert((q, track));
+                        }
+                    }
+                    tracks.index.insert(q, track);
+                    tracks.points.push(q);
+                }
             }
         }
     }
-    out
 }
 
 #[cfg(test)]
@@ -318,8 +411,16 @@ mod tests {
     /// this vessel's in view 0) crosses the vessel in space.
     const FLOATING: ([f64; 3], [f64; 3]) = ([0.0, -6.0, 9.0], [8.0, -6.0, 2.5]);
 
+    /// Branches off the vessel half-way along it and never touches the prior.
+    const BRANCH: ([f64; 3], [f64; 3]) = ([4.0, 2.0, 5.75], [-4.0, 7.0, 12.0]);
+
     /// The tracks from the prior in two views whose residuals show `missing` (radius 0.6 mm).
     fn tracks(missing: &[([f64; 3], [f64; 3])]) -> Vec<DVec3> {
+        tracks_in_rounds(missing, 1)
+    }
+
+    /// [`tracks`] in `rounds` rounds.
+    fn tracks_in_rounds(missing: &[([f64; 3], [f64; 3])], rounds: usize) -> Vec<DVec3> {
         let (_, views, _, bounds) = scene();
         let views = &views[..2];
         let (prior, _) = prior_and_images(PRIOR, &[], views, &bounds);
@@ -341,6 +442,7 @@ mod tests {
             brightness_cost: 1.0,
             claimed_run_mm: 1.0,
             max_points: 10_000,
+            rounds,
         };
         track_from_prior(&res, &candidates, &solid, settings)
     }
@@ -353,7 +455,12 @@ mod tests {
 
     /// Share of the vessel's axis beyond 2 mm from the prior's axis within 1 mm of a point.
     fn covered(points: &[DVec3]) -> f64 {
-        let (a, b) = (DVec3::from(VESSEL.0), DVec3::from(VESSEL.1));
+        covered_of(points, VESSEL)
+    }
+
+    /// Share of `vessel`'s axis beyond 2 mm from the prior's axis within 1 mm of a point.
+    fn covered_of(points: &[DVec3], vessel: ([f64; 3], [f64; 3])) -> f64 {
+        let (a, b) = (DVec3::from(vessel.0), DVec3::from(vessel.1));
         let axis: Vec<DVec3> =
             (0..=100).map(|k| a.lerp(b, k as f64 / 100.0)).filter(|p| p.y.hypot(p.z) > 2.0).collect();
         axis.iter().filter(|q| points.iter().any(|p| p.distance(**q) < 1.0)).count() as f64 / axis.len() as f64
@@ -377,6 +484,28 @@ mod tests {
         eprintln!("{} points, {off} off the vessel, {:.0} % of it covered", points.len(), 100.0 * covered(&points));
         assert!(off * 10 <= points.len(), "at most a tenth off the vessel: {off} of {}", points.len());
         assert!(covered(&points) > 0.7, "covers the vessel: {:.2}", covered(&points));
+    }
+
+    /// A branch of a new vessel never touches the prior: the first round leaves it, the second
+    /// starts beside the first round's track and follows it. (With two views a ghost leaves
+    /// the junction too, on the vessel in one view and on the branch in the other.)
+    #[test]
+    fn a_second_round_follows_the_branch_of_a_tracked_vessel() {
+        let (one, two) = (tracks_in_rounds(&[VESSEL, BRANCH], 1), tracks_in_rounds(&[VESSEL, BRANCH], 2));
+        let off = |p: &[DVec3]| {
+            let far = |q: &&DVec3| to_segment(**q, VESSEL.0, VESSEL.1).min(to_segment(**q, BRANCH.0, BRANCH.1)) > 1.0;
+            p.iter().filter(|q| q.y.hypot(q.z) > 2.5).filter(far).count()
+        };
+        let (branch_one, branch_two) = (covered_of(&one, BRANCH), covered_of(&two, BRANCH));
+        eprintln!(
+            "branch covered: one round {branch_one:.2}, two {branch_two:.2}; off: {} of {}",
+            off(&two),
+            two.len()
+        );
+        assert!(branch_one < 0.3, "one round leaves the branch: {branch_one:.2}");
+        assert!(branch_two > 0.5, "two rounds follow it: {branch_two:.2}");
+        assert!(covered(&two) >= covered(&one), "and keep the vessel");
+        assert!(off(&two) * 4 <= two.len(), "at most a quarter off both: {} of {}", off(&two), two.len());
     }
 
     #[test]

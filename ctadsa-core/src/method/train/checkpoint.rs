@@ -85,18 +85,20 @@ fn flat_settings(text: &str) -> std::collections::BTreeMap<String, String> {
 }
 
 /// The training settings (`section.key`) in which a checkpoint's `saved` settings and the
-/// `current` ones differ. `[output]` never counts; a key that only one side has (a setting added
-/// or removed between versions) counts only when its value is not the default.
+/// `current` ones differ. `[output]` never counts, nor the tracker's settings (`init.track_*`)
+/// of a model that tracks on neither side; a key that only one side has (a setting added or
+/// removed between versions) counts only when its value is not the default.
 fn settings_differences(saved: &str, current: &str) -> Vec<String> {
     let (a, b) = (flat_settings(saved), flat_settings(current));
     let defaults = flat_settings(&training_settings(&Config::default()));
+    let value = |side: &std::collections::BTreeMap<String, String>, k: &str| side.get(k).or(defaults.get(k)).cloned();
+    const TRACKING: &str = "init.track_max_views";
+    let untracked = value(&a, TRACKING).as_deref() == Some("0") && value(&b, TRACKING).as_deref() == Some("0");
     let keys: std::collections::BTreeSet<&String> = a.keys().chain(b.keys()).collect();
     keys.into_iter()
         .filter(|k| !k.starts_with("output."))
-        .filter(|k| {
-            let value = |side: &std::collections::BTreeMap<String, String>| side.get(*k).or(defaults.get(*k)).cloned();
-            value(&a) != value(&b)
-        })
+        .filter(|k| !(untracked && k.starts_with("init.track_")))
+        .filter(|k| value(&a, k) != value(&b, k))
         .cloned()
         .collect()
 }
@@ -347,6 +349,22 @@ mod tests {
         assert_eq!(settings_differences(&without, &training_settings(&knn)), vec!["init.knn"]);
         // Old checkpoints stored [output]; it never counts.
         assert!(settings_differences(&(saved.clone() + "\n[output]\nmc_level = 0.9\n"), &saved).is_empty());
+    }
+
+    #[test]
+    fn the_trackers_settings_count_only_for_a_model_that_tracks() {
+        let base = Config::default();
+        assert_eq!(base.init.track_max_views, 0, "the default model does not track");
+        let mut rounds = base.clone();
+        rounds.init.track_rounds = 2;
+        let saved = training_settings(&base);
+        assert!(settings_differences(&saved, &training_settings(&rounds)).is_empty());
+        let (mut tracked, mut tracked_rounds) = (base.clone(), rounds.clone());
+        tracked.init.track_max_views = 2;
+        tracked_rounds.init.track_max_views = 2;
+        let differ = settings_differences(&training_settings(&tracked), &training_settings(&tracked_rounds));
+        assert_eq!(differ, vec!["init.track_rounds"]);
+        assert_eq!(settings_differences(&saved, &training_settings(&tracked)), vec!["init.track_max_views"]);
     }
 
     #[test]
