@@ -65,7 +65,7 @@ fn shipped_configs_load_and_matrices_point_at_them() {
     );
     // The 512² configuration is the quick one with 1.5 times the iterations, its schedule
     // scaled with the run, the prior's projection subtracted for the image seeds, a second
-    // image-seeded member and tracks for the prior-only member (measured at 512² only), the
+    // image-seeded member and tracks in rounds for the prior-only member (measured at 512² only), the
     // centreline's tracing, nothing else.
     let mut fine = Config::load(Some(&root.join("quick-512.toml")), &[]).unwrap();
     let scaled = |n: usize| n * 3 / 2;
@@ -88,6 +88,11 @@ fn shipped_configs_load_and_matrices_point_at_them() {
     assert_eq!((fine.run.member_tracks_max_views, quick.run.member_tracks_max_views), (3, 0));
     assert_eq!(fine.prior_only_member().unwrap().init.track_max_views, 3);
     fine.run.member_tracks_max_views = 0;
+    // Its tracks in rounds: the branches of the tracked vessels (only the member tracks).
+    assert!(fine.init.track_rounds > 1 && quick.init.track_rounds == 1);
+    assert!(fine.init.track_max_points > quick.init.track_max_points);
+    fine.init.track_rounds = quick.init.track_rounds;
+    fine.init.track_max_points = quick.init.track_max_points;
     // Denser, spaced image seeds with three views; two-view runs keep quick's.
     assert_eq!((fine.init.n2_for(2), fine.init.seed_spacing_mm_for(2)), (quick.init.n2, quick.init.seed_spacing_mm));
     assert!(fine.init.n2_for(3) > quick.init.n2 && fine.init.seed_spacing_mm_for(3) > 0.0);
