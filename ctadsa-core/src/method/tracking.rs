@@ -20,8 +20,8 @@ use ctadsa_render::ConeBeamView;
 use glam::{DVec3, IVec3};
 
 use crate::data::case::images::Image;
-use crate::data::volume::Volume;
 use crate::data::volume::edt::squared_edt;
+use crate::data::volume::{Grid, Volume};
 use crate::method::init::{Scored, pixel_of};
 
 /// Step along a track (mm).
@@ -278,7 +278,7 @@ pub(crate) fn track_from_prior(
 struct Tracker<'a> {
     res: &'a Residuals<'a>,
     settings: TrackSettings,
-    grid: crate::data::volume::Grid,
+    grid: Grid,
     dirs: Vec<DVec3>,
     cos_cone: f64,
 }
