@@ -118,6 +118,13 @@ pub struct InitConfig {
     /// from 27 to 19 % and lowers CD_ROI on 13 of 16 runs over two seeds (docs/RESULTS.md,
     /// "The prior subtracted, not masked").
     pub subtract_prior: bool,
+    /// With `subtract_prior`: the prior's chords are those of its mesh moved outward by the
+    /// offset (0–0.4 mm), and blurred by the Gaussian (0–2 px), that best explain each view on
+    /// the prior's footprint, fitted with the contrast (`data::projector::matched`), before they are
+    /// dilated and subtracted. The mesh, an iso-surface, lies inside the imaged vessel's edge:
+    /// its sharp chords leave a ring along every edge and thin vessel that a dilation of the
+    /// projection (`prior_dilation_px`) covers, hiding what passes behind the prior with it.
+    pub fit_prior_projection: bool,
     /// Dilation (pixels) of the residual masks before back-projection.
     pub residual_dilation_px: u32,
     /// Voxel of the back-projection grid (mm); 0 = the case's working voxel.
@@ -224,6 +231,7 @@ impl Default for InitConfig {
             prior_dilation_px: 3,
             subtract_prior: false,
             residual_dilation_px: 1,
+            fit_prior_projection: false,
             n2_voxel_mm: 0.0,
             knn: 3,
             occluded_views_support: false,
@@ -362,6 +370,9 @@ pub const MAX_GAUSSIANS: usize = 20_000_000;
 /// Largest number of metric samples per surface (`output.metric_samples`, `ctadsa eval
 /// --samples`): a larger request is an error, not an allocation.
 pub const MAX_SAMPLES: usize = 10_000_000;
+
+/// The widest dilation (pixels) of a projected prior or residual mask a config may ask for.
+pub const MAX_DILATION_PX: u32 = 64;
 
 /// The widest field MLP a config may ask for.
 pub const MAX_HIDDEN: usize = 4096;
@@ -815,6 +826,12 @@ impl Config {
         )?;
         check((0.0..=10.0).contains(&self.init.track_start_mm), "init.track_start_mm", "must be in [0, 10] mm")?;
         check((1..=8).contains(&self.init.track_rounds), "init.track_rounds", "must be in 1..=8")?;
+        for (k, px) in [
+            ("init.prior_dilation_px", self.init.prior_dilation_px),
+            ("init.residual_dilation_px", self.init.residual_dilation_px),
+        ] {
+            check(px <= MAX_DILATION_PX, k, "must be at most 64 pixels")?;
+        }
         for (k, v) in [
             ("init.track_turn_cost", self.init.track_turn_cost),
             ("init.track_brightness_cost", self.init.track_brightness_cost),

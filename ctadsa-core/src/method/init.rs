@@ -32,6 +32,7 @@ use crate::data::masks::{
 };
 use crate::data::mesh::TriMesh;
 use crate::data::mesh::sample::sample_surface;
+use crate::data::projector::matched::{BLUR_SIGMAS_PX, OFFSETS_MM, fit_mesh_projection};
 use crate::data::projector::mesh::mesh_chords;
 use crate::data::volume::{BoxMm, Grid, Volume};
 use crate::error::{CoreError, Result};
@@ -177,8 +178,14 @@ pub fn n2_seeds(
                     // the dilation: the grey-level analogue of dilating its silhouette) at the
                     // fitted contrast per mm, and what is left scores the voxels.
                     Some(mesh) => {
-                        let chords = mesh_chords(mesh, &views[vi])?;
-                        let contrast = contrast_per_mm(&images[vi], &chords);
+                        let (chords, contrast) = if cfg.fit_prior_projection {
+                            let fit = fit_mesh_projection(&images[vi], mesh, &views[vi], &OFFSETS_MM, &BLUR_SIGMAS_PX)?;
+                            (fit.chords, fit.contrast_per_mm)
+                        } else {
+                            let sharp = mesh_chords(mesh, &views[vi])?;
+                            let contrast = contrast_per_mm(&images[vi], &sharp);
+                            (sharp, contrast)
+                        };
                         let longest = max_filtered(&chords, m.width as usize, cfg.prior_dilation_px);
                         let rest = minus_solid(&images[vi], &longest, contrast);
                         let shown = above(&rest, levels[vi]);
@@ -526,6 +533,17 @@ pub(crate) mod tests {
         eprintln!("{on} of {} tracked seeds on the vessel", seeds.len());
         assert!(seeds.len() >= 10, "only {} seeds", seeds.len());
         assert_eq!(on, seeds.len(), "every seed on the vessel that leaves the prior");
+        // The prior's projection fitted to the views and not dilated: the tracks go as far along
+        // the vessel, and what the undilated projection leaves along the prior's edge is tracked
+        // too, beside the prior and nowhere else.
+        let fitted = InitConfig { fit_prior_projection: true, prior_dilation_px: 0, ..cfg.clone() };
+        let seeds_fitted = n2_seeds(&fitted, &views[..2], &images, Some(&prior), &bounds, 0.4, 7).unwrap();
+        let (on_vessel, off): (Vec<DVec3>, Vec<DVec3>) =
+            seeds_fitted.iter().partition(|p| to_segment(**p, leaving.0, leaving.1) < 1.5);
+        eprintln!("fitted: {} of {} tracked seeds on the vessel", on_vessel.len(), seeds_fitted.len());
+        assert!(on_vessel.len() >= on, "{} against {on} on the vessel", on_vessel.len());
+        let beside_prior = |p: &DVec3| to_segment(*p, PRIOR.0, PRIOR.1) < 2.5;
+        assert!(off.iter().all(beside_prior), "off the vessel and away from the prior: {off:?}");
         let off = InitConfig { track_max_views: 0, ..cfg.clone() };
         assert!(n2_seeds(&off, &views[..2], &images, Some(&prior), &bounds, 0.4, 7).unwrap().is_empty());
         let (_, three_images) = prior_and_images(PRIOR, &[leaving], &views, &bounds);

@@ -48,6 +48,26 @@ impl TriMesh {
             .sum()
     }
 
+    /// The surface moved `offset_mm` outward (negative: inward) along its vertex normals (the
+    /// area-weighted mean of the faces' normals), outward taken from the sign of the enclosed
+    /// volume; a vertex without a normal stays.
+    pub fn offset(&self, offset_mm: f64) -> TriMesh {
+        let mut normals = vec![DVec3::ZERO; self.vertices.len()];
+        for f in &self.faces {
+            let [a, b, c] = f.map(|i| self.vertices[i as usize]);
+            let n = (b - a).cross(c - a);
+            f.iter().for_each(|&i| normals[i as usize] += n);
+        }
+        let out = if self.signed_volume_mm3() < 0.0 { -offset_mm } else { offset_mm };
+        let vertices = self
+            .vertices
+            .iter()
+            .zip(&normals)
+            .map(|(v, n)| *v + n.try_normalize().unwrap_or(DVec3::ZERO) * out)
+            .collect();
+        TriMesh { vertices, faces: self.faces.clone() }
+    }
+
     /// Number of undirected edges not shared by exactly two faces (0 for a closed mesh).
     pub fn open_edges(&self) -> usize {
         let mut count: HashMap<(u32, u32), u32> = HashMap::new();
@@ -160,5 +180,30 @@ impl TriMesh {
             }
         }
         (out, dropped)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A regular octahedron of circumradius `r` (mm) about the origin, outward-facing.
+    fn octahedron(r: f64) -> TriMesh {
+        let vertices = vec![DVec3::X * r, -DVec3::X * r, DVec3::Y * r, -DVec3::Y * r, DVec3::Z * r, -DVec3::Z * r];
+        let faces = vec![[0, 2, 4], [2, 1, 4], [1, 3, 4], [3, 0, 4], [2, 0, 5], [1, 2, 5], [3, 1, 5], [0, 3, 5]];
+        TriMesh { vertices, faces }
+    }
+
+    #[test]
+    fn an_offset_moves_the_surface_outward_along_its_normals_whatever_way_it_faces() {
+        let mesh = octahedron(2.0);
+        assert!((mesh.signed_volume_mm3() - 4.0 / 3.0 * 8.0).abs() < 1e-9, "the oracle faces out");
+        let grown = mesh.offset(0.5);
+        assert!(grown.vertices.iter().zip(&octahedron(2.5).vertices).all(|(a, b)| a.distance(*b) < 1e-12));
+        let inward = TriMesh { faces: mesh.faces.iter().map(|&[a, b, c]| [a, c, b]).collect(), ..mesh.clone() };
+        assert!(inward.signed_volume_mm3() < 0.0);
+        assert_eq!(inward.offset(0.5).vertices, grown.vertices, "outward by the enclosed volume's sign");
+        let shrunk = mesh.offset(-0.5);
+        assert!(shrunk.vertices.iter().zip(&octahedron(1.5).vertices).all(|(a, b)| a.distance(*b) < 1e-12));
     }
 }

@@ -123,12 +123,12 @@ pub fn mesh_chords(mesh: &TriMesh, view: &ConeBeamView) -> Result<Vec<f32>> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use ctadsa_render::TigreGeometry;
 
     /// An axis-aligned box `lo..hi` (mm) as 12 outward-facing triangles.
-    fn box_mesh(lo: [f64; 3], hi: [f64; 3]) -> TriMesh {
+    pub(crate) fn box_mesh(lo: [f64; 3], hi: [f64; 3]) -> TriMesh {
         let v = |i: usize| {
             DVec3::new(
                 if i & 1 == 0 { lo[0] } else { hi[0] },
@@ -156,7 +156,7 @@ mod tests {
         (t1 - t0).max(0.0)
     }
 
-    fn view() -> ConeBeamView {
+    pub(crate) fn view() -> ConeBeamView {
         ConeBeamView::from_tigre(&TigreGeometry { detector_px: [64, 48], ..TigreGeometry::reference(-60.0) }).unwrap()
     }
 

@@ -5,6 +5,7 @@
 //! shared.
 
 pub mod correction;
+pub mod matched;
 pub mod mesh;
 pub mod noise;
 
