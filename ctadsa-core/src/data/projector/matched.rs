@@ -93,38 +93,33 @@ fn footprint(chords: &[f32], width: usize, sigma_px: f64) -> Vec<usize> {
 /// [`fit_blur`] over the given `footprint` pixels.
 fn fit_blur_on(image: &Image, chords: &[f32], sigmas_px: &[f64], footprint: &[usize]) -> MatchedChords {
     let width = image.width as usize;
-    let mut best: Option<(f64, MatchedChords)> = None;
+    let mut best: Option<MatchedChords> = None;
     for &sigma_px in sigmas_px {
         let blurred = gaussian_blurred(chords, width, sigma_px);
         let contrast = contrast_per_mm(image, &blurred);
-        let cost: f64 = footprint
+        let cost = footprint
             .iter()
             .filter(|&&i| blurred[i].is_finite())
             .map(|&i| (image.data[i] as f64 - contrast * blurred[i] as f64).abs())
-            .sum();
-        if best.as_ref().is_none_or(|(c, _)| cost < *c) {
-            let mean = cost / footprint.len().max(1) as f64;
-            best = Some((
-                cost,
-                MatchedChords { offset_mm: 0.0, cost: mean, sigma_px, contrast_per_mm: contrast, chords: blurred },
-            ));
+            .sum::<f64>()
+            / footprint.len().max(1) as f64;
+        if best.as_ref().is_none_or(|b| cost < b.cost) {
+            best = Some(MatchedChords { offset_mm: 0.0, cost, sigma_px, contrast_per_mm: contrast, chords: blurred });
         }
     }
-    best.map_or_else(
-        || MatchedChords {
-            offset_mm: 0.0,
-            cost: f64::NAN,
-            sigma_px: 0.0,
-            contrast_per_mm: contrast_per_mm(image, chords),
-            chords: chords.to_vec(),
-        },
-        |(_, f)| f,
-    )
+    best.unwrap_or_else(|| MatchedChords {
+        offset_mm: 0.0,
+        cost: f64::NAN,
+        sigma_px: 0.0,
+        contrast_per_mm: contrast_per_mm(image, chords),
+        chords: chords.to_vec(),
+    })
 }
 
 /// The chords of `mesh` in `view`, moved outward by one of `offsets_mm` and blurred by one of
 /// `sigmas_px`, that fit `image` best ([`fit_blur`]'s criterion, on the footprint of the widest
-/// offset and blur, so that every candidate is judged on the same pixels).
+/// offset and blur, so that every candidate is judged on the same pixels); with no offset given,
+/// the mesh as it is.
 pub fn fit_mesh_projection(
     image: &Image,
     mesh: &TriMesh,
@@ -133,21 +128,20 @@ pub fn fit_mesh_projection(
     sigmas_px: &[f64],
 ) -> Result<MatchedChords> {
     let width = image.width as usize;
-    let widest_offset = offsets_mm.iter().copied().fold(0.0, f64::max);
+    let by_offset: Vec<(f64, Vec<f32>)> =
+        offsets_mm.iter().map(|&o| Ok((o, mesh_chords(&mesh.offset(o), view)?))).collect::<Result<_>>()?;
+    // Every candidate is judged on the footprint of the widest offset and blur.
+    let Some((_, widest)) = by_offset.iter().max_by(|a, b| a.0.total_cmp(&b.0)) else {
+        return Ok(fit_blur(image, &mesh_chords(mesh, view)?, sigmas_px));
+    };
     let widest_sigma = sigmas_px.iter().copied().fold(0.0, f64::max);
-    let pixels = footprint(&mesh_chords(&mesh.offset(widest_offset), view)?, width, widest_sigma);
-    let mut best: Option<MatchedChords> = None;
-    for &offset_mm in offsets_mm {
-        let chords = mesh_chords(&mesh.offset(offset_mm), view)?;
-        let fit = MatchedChords { offset_mm, ..fit_blur_on(image, &chords, sigmas_px, &pixels) };
-        if best.as_ref().is_none_or(|b| fit.cost < b.cost) {
-            best = Some(fit);
-        }
-    }
-    match best {
-        Some(b) => Ok(b),
-        None => Ok(MatchedChords { offset_mm: 0.0, ..fit_blur(image, &mesh_chords(mesh, view)?, sigmas_px) }),
-    }
+    let pixels = footprint(widest, width, widest_sigma);
+    let fits = by_offset.iter().map(|(offset_mm, chords)| MatchedChords {
+        offset_mm: *offset_mm,
+        ..fit_blur_on(image, chords, sigmas_px, &pixels)
+    });
+    let best = fits.reduce(|best, fit| if fit.cost < best.cost { fit } else { best });
+    Ok(best.unwrap_or_else(|| fit_blur(image, widest, sigmas_px)))
 }
 
 #[cfg(test)]
