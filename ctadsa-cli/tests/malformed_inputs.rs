@@ -149,6 +149,7 @@ fn out_of_range_config_values_are_refused_naming_the_key() {
         ("densify.min_density=nan", "densify.min_density"),
         ("init.prior_dilation_px=4000000000", "init.prior_dilation_px"),
         ("init.residual_dilation_px=100000", "init.residual_dilation_px"),
+        ("init.track_prior_dilation_px=100000", "init.track_prior_dilation_px"),
         ("densify.clone_scale_voxels=[0, 0]", "densify.clone_scale_voxels"),
         ("loss.fn_tau=nan", "loss.fn_tau"),
         ("loss.fn_margin=-1", "loss.fn_margin"),

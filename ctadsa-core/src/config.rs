@@ -206,6 +206,11 @@ pub struct InitConfig {
     /// Rounds of tracking: the first starts beside the prior, each further one beside the
     /// tracks of the round before (the branches of new vessels, which never touch the prior).
     pub track_rounds: usize,
+    /// `fit_prior_projection` for the tracker's residual (absent: as the image seeds'). The
+    /// tracks and the image seeds then read two residuals, back-projected apart.
+    pub track_fit_prior_projection: Option<bool>,
+    /// `prior_dilation_px` for the tracker's residual (absent: as the image seeds').
+    pub track_prior_dilation_px: Option<u32>,
 }
 
 impl InitConfig {
@@ -248,6 +253,8 @@ impl Default for InitConfig {
             track_claimed_run_mm: 1.0,
             track_max_points: 20_000,
             track_rounds: 1,
+            track_fit_prior_projection: None,
+            track_prior_dilation_px: None,
             connected_to_prior_mm: 3.0,
             connected_max_views: 2,
             seed_spacing_mm: 0.0,
@@ -829,6 +836,7 @@ impl Config {
         for (k, px) in [
             ("init.prior_dilation_px", self.init.prior_dilation_px),
             ("init.residual_dilation_px", self.init.residual_dilation_px),
+            ("init.track_prior_dilation_px", self.init.track_prior_dilation_px.unwrap_or(0)),
         ] {
             check(px <= MAX_DILATION_PX, k, "must be at most 64 pixels")?;
         }

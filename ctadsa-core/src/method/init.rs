@@ -155,50 +155,9 @@ pub fn n2_seeds(
     }
     let levels: Vec<f64> = images.iter().map(|img| vessel_level(img, cfg.mask_threshold)).collect();
     let masks: Vec<Mask> = images.iter().zip(&levels).map(|(img, &level)| above(img, level)).collect();
-    // What scores a supported voxel: the images, or with `subtract_prior` what the prior leaves.
-    let mut values: Cow<[Image]> = Cow::Borrowed(images);
-    let mut occluded: Option<Vec<Mask>> = None;
-    let support: Vec<Mask> = match cfg.n2_mode {
-        SeedMode::AllViewsIntersect => masks.iter().map(|m| m.dilated(cfg.residual_dilation_px)).collect(),
-        _ => {
-            let Some(s) = solid.as_ref() else {
-                return Err(CoreError::invalid(format!("init.n2_mode {:?} needs a prior mesh", cfg.n2_mode)));
-            };
-            let prior_sil: Vec<Mask> = silhouettes(s, views).iter().map(|p| p.dilated(cfg.prior_dilation_px)).collect();
-            if cfg.occluded_views_support && views.len() >= cfg.occluded_min_views {
-                occluded = Some(
-                    masks.iter().zip(&prior_sil).map(|(m, p)| m.dilated(cfg.residual_dilation_px).and(p)).collect(),
-                );
-            }
-            let mut support = Vec::with_capacity(views.len());
-            for (vi, (m, p)) in masks.iter().zip(&prior_sil).enumerate() {
-                let shown = match prior.filter(|_| cfg.subtract_prior) {
-                    // The prior's projection subtracted instead of masked: a pixel shows
-                    // residual where the image exceeds the prior's chord (the longest within
-                    // the dilation: the grey-level analogue of dilating its silhouette) at the
-                    // fitted contrast per mm, and what is left scores the voxels.
-                    Some(mesh) => {
-                        let (chords, contrast) = if cfg.fit_prior_projection {
-                            let fit = fit_mesh_projection(&images[vi], mesh, &views[vi], &OFFSETS_MM, &BLUR_SIGMAS_PX)?;
-                            (fit.chords, fit.contrast_per_mm)
-                        } else {
-                            let sharp = mesh_chords(mesh, &views[vi])?;
-                            let contrast = contrast_per_mm(&images[vi], &sharp);
-                            (sharp, contrast)
-                        };
-                        let longest = max_filtered(&chords, m.width as usize, cfg.prior_dilation_px);
-                        let rest = minus_solid(&images[vi], &longest, contrast);
-                        let shown = above(&rest, levels[vi]);
-                        values.to_mut()[vi] = rest;
-                        shown
-                    }
-                    None => m.minus(p),
-                };
-                support.push(shown.dilated(cfg.residual_dilation_px));
-            }
-            support
-        }
-    };
+    let seeds_removal = PriorRemoval { fit: cfg.fit_prior_projection, dilation_px: cfg.prior_dilation_px };
+    let shown = ResidualViews { cfg, views, images, prior, solid: solid.as_ref(), masks: &masks, levels: &levels };
+    let Residual { support, values, occluded } = shown.residual(seeds_removal)?;
     let intersect = cfg.n2_mode != SeedMode::ResidualUnion;
     let exclude = if cfg.n2_mode == SeedMode::AllViewsIntersect { None } else { solid.as_ref() };
     let occluded = occluded.filter(|_| intersect);
@@ -206,7 +165,16 @@ pub fn n2_seeds(
     // Tracked from the prior (before the growth or the connectivity filter thins the starts).
     let tracked = match exclude {
         Some(s) if intersect && tracking => {
-            let res = Residuals { views, images: &values, levels: &levels };
+            let track_removal = PriorRemoval {
+                fit: cfg.track_fit_prior_projection.unwrap_or(seeds_removal.fit),
+                dilation_px: cfg.track_prior_dilation_px.unwrap_or(seeds_removal.dilation_px),
+            };
+            // The tracker's own residual where its removal of the prior differs.
+            let own = (track_removal != seeds_removal).then(|| shown.residual(track_removal)).transpose()?;
+            let own_scored = own
+                .as_ref()
+                .map(|r| back_project(&grid, views, &r.support, r.occluded.as_deref(), &r.values, exclude, intersect));
+            let res = Residuals { views, images: own.as_ref().map_or(&*values, |r| &*r.values), levels: &levels };
             let settings = TrackSettings {
                 start_mm: cfg.track_start_mm,
                 level: cfg.track_level,
@@ -216,7 +184,7 @@ pub fn n2_seeds(
                 max_points: cfg.track_max_points,
                 rounds: cfg.track_rounds,
             };
-            track_from_prior(&res, &scored, s, settings)
+            track_from_prior(&res, own_scored.as_ref().unwrap_or(&scored), s, settings)
         }
         _ => Vec::new(),
     };
@@ -238,6 +206,80 @@ pub fn n2_seeds(
     let mut centres = best_centres(scored, spacing_mm, n, h, &mut rng);
     centres.extend(tracked);
     Ok(centres)
+}
+
+/// How each view's image is rid of the prior before the back-projection
+/// (`init.fit_prior_projection`, `init.prior_dilation_px`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct PriorRemoval {
+    fit: bool,
+    dilation_px: u32,
+}
+
+/// What the views show beside the prior: per view the support mask and the image that scores the
+/// voxels, and (`init.occluded_views_support`) the masks where the prior hides a vessel.
+struct Residual<'a> {
+    support: Vec<Mask>,
+    values: Cow<'a, [Image]>,
+    occluded: Option<Vec<Mask>>,
+}
+
+/// The inputs from which [`Residual`]s are taken (one per [`PriorRemoval`]).
+struct ResidualViews<'a> {
+    cfg: &'a InitConfig,
+    views: &'a [ConeBeamView],
+    images: &'a [Image],
+    prior: Option<&'a TriMesh>,
+    /// The prior's solid on the back-projection grid.
+    solid: Option<&'a Volume<u8>>,
+    /// Each view's vessel mask and vessel level (contrast × mm).
+    masks: &'a [Mask],
+    levels: &'a [f64],
+}
+
+impl<'a> ResidualViews<'a> {
+    fn residual(&self, removal: PriorRemoval) -> Result<Residual<'a>> {
+        let (cfg, views, images) = (self.cfg, self.views, self.images);
+        let mut values: Cow<'a, [Image]> = Cow::Borrowed(images);
+        if cfg.n2_mode == SeedMode::AllViewsIntersect {
+            let support = self.masks.iter().map(|m| m.dilated(cfg.residual_dilation_px)).collect();
+            return Ok(Residual { support, values, occluded: None });
+        }
+        let Some(s) = self.solid else {
+            return Err(CoreError::invalid(format!("init.n2_mode {:?} needs a prior mesh", cfg.n2_mode)));
+        };
+        let prior_sil: Vec<Mask> = silhouettes(s, views).iter().map(|p| p.dilated(removal.dilation_px)).collect();
+        let occluded = (cfg.occluded_views_support && views.len() >= cfg.occluded_min_views).then(|| {
+            self.masks.iter().zip(&prior_sil).map(|(m, p)| m.dilated(cfg.residual_dilation_px).and(p)).collect()
+        });
+        let mut support = Vec::with_capacity(views.len());
+        for (vi, (m, p)) in self.masks.iter().zip(&prior_sil).enumerate() {
+            let shown = match self.prior.filter(|_| cfg.subtract_prior) {
+                // The prior's projection subtracted instead of masked: a pixel shows residual
+                // where the image exceeds the prior's chord (the longest within the dilation:
+                // the grey-level analogue of dilating its silhouette) at the fitted contrast per
+                // mm, and what is left scores the voxels.
+                Some(mesh) => {
+                    let (chords, contrast) = if removal.fit {
+                        let fit = fit_mesh_projection(&images[vi], mesh, &views[vi], &OFFSETS_MM, &BLUR_SIGMAS_PX)?;
+                        (fit.chords, fit.contrast_per_mm)
+                    } else {
+                        let sharp = mesh_chords(mesh, &views[vi])?;
+                        let contrast = contrast_per_mm(&images[vi], &sharp);
+                        (sharp, contrast)
+                    };
+                    let longest = max_filtered(&chords, m.width as usize, removal.dilation_px);
+                    let rest = minus_solid(&images[vi], &longest, contrast);
+                    let shown = above(&rest, self.levels[vi]);
+                    values.to_mut()[vi] = rest;
+                    shown
+                }
+                None => m.minus(p),
+            };
+            support.push(shown.dilated(cfg.residual_dilation_px));
+        }
+        Ok(Residual { support, values, occluded })
+    }
 }
 
 /// The centres (mm) of the `n` best-scored voxels (of side `voxel_mm`), at least `spacing_mm`
@@ -549,6 +591,40 @@ pub(crate) mod tests {
         let (_, three_images) = prior_and_images(PRIOR, &[leaving], &views, &bounds);
         let three_views = n2_seeds(&cfg, &views, &three_images, Some(&prior), &bounds, 0.4, 7);
         assert!(three_views.unwrap().is_empty(), "more views than track_max_views: none");
+    }
+
+    /// `init.track_fit_prior_projection` / `init.track_prior_dilation_px`: the tracks read the
+    /// residual they name, the image seeds keep their own.
+    #[test]
+    fn the_tracker_may_remove_the_prior_its_own_way() {
+        let (_, views, _, bounds) = scene();
+        let leaving = ([2.0, 0.0, 0.5], [6.0, 4.0, 11.0]);
+        let (prior, images) = prior_and_images(PRIOR, &[leaving], &views[..2], &bounds);
+        let seeds = |cfg: &InitConfig| n2_seeds(cfg, &views[..2], &images, Some(&prior), &bounds, 0.4, 7).unwrap();
+        let base = InitConfig {
+            n2: 0,
+            track_max_views: 2,
+            prior_dilation_px: 1,
+            subtract_prior: true,
+            ..InitConfig::default()
+        };
+        let fitted = InitConfig { fit_prior_projection: true, prior_dilation_px: 0, ..base.clone() };
+        let own =
+            InitConfig { track_fit_prior_projection: Some(true), track_prior_dilation_px: Some(0), ..base.clone() };
+        let (tracked_fitted, tracked_own, tracked_base) = (seeds(&fitted), seeds(&own), seeds(&base));
+        assert_ne!(tracked_fitted, tracked_base, "the fitted, undilated residual tracks differently here");
+        assert_eq!(tracked_own, tracked_fitted, "the tracker's own settings: the tracks of the fitted residual");
+        // With image seeds and no tracking, the tracker's settings change nothing.
+        let image = InitConfig { n2: 300, track_max_views: 0, ..base.clone() };
+        let image_own =
+            InitConfig { track_fit_prior_projection: Some(true), track_prior_dilation_px: Some(0), ..image.clone() };
+        assert_eq!(seeds(&image), seeds(&image_own));
+        // Both: the image seeds as without the tracker's settings, then the tracks of the fitted residual.
+        let both = InitConfig { n2: 300, ..own.clone() };
+        let image_seeds = seeds(&image);
+        let both_seeds = seeds(&both);
+        assert_eq!(both_seeds[..image_seeds.len()], image_seeds[..]);
+        assert_eq!(both_seeds[image_seeds.len()..], tracked_fitted[..]);
     }
 
     #[test]
