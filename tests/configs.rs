@@ -93,6 +93,11 @@ fn shipped_configs_load_and_matrices_point_at_them() {
     assert!(fine.init.track_max_points > quick.init.track_max_points);
     fine.init.track_rounds = quick.init.track_rounds;
     fine.init.track_max_points = quick.init.track_max_points;
+    // The tracks read the prior's projection fitted to each view and not dilated; the image
+    // seeds keep quick's removal of the prior.
+    assert_eq!((fine.init.track_fit_prior_projection, fine.init.track_prior_dilation_px), (Some(true), Some(0)));
+    assert_eq!((fine.init.fit_prior_projection, fine.init.prior_dilation_px), (false, quick.init.prior_dilation_px));
+    (fine.init.track_fit_prior_projection, fine.init.track_prior_dilation_px) = (None, None);
     // Denser, spaced image seeds with three views; two-view runs keep quick's.
     assert_eq!((fine.init.n2_for(2), fine.init.seed_spacing_mm_for(2)), (quick.init.n2, quick.init.seed_spacing_mm));
     assert!(fine.init.n2_for(3) > quick.init.n2 && fine.init.seed_spacing_mm_for(3) > 0.0);
