@@ -155,13 +155,23 @@ pub fn n2_seeds(
     }
     let levels: Vec<f64> = images.iter().map(|img| vessel_level(img, cfg.mask_threshold)).collect();
     let masks: Vec<Mask> = images.iter().zip(&levels).map(|(img, &level)| above(img, level)).collect();
-    let seeds_removal = PriorRemoval { fit: cfg.fit_prior_projection, dilation_px: cfg.prior_dilation_px };
-    let shown = ResidualViews { cfg, views, images, prior, solid: solid.as_ref(), masks: &masks, levels: &levels };
-    let Residual { support, values, occluded } = shown.residual(seeds_removal)?;
     let intersect = cfg.n2_mode != SeedMode::ResidualUnion;
     let exclude = if cfg.n2_mode == SeedMode::AllViewsIntersect { None } else { solid.as_ref() };
-    let occluded = occluded.filter(|_| intersect);
-    let mut scored = back_project(&grid, views, &support, occluded.as_deref(), &values, exclude, intersect);
+    let shown = ResidualViews {
+        cfg,
+        views,
+        images,
+        prior,
+        solid: solid.as_ref(),
+        masks: &masks,
+        levels: &levels,
+        grid: &grid,
+        exclude,
+        intersect,
+    };
+    let seeds_removal = PriorRemoval { fit: cfg.fit_prior_projection, dilation_px: cfg.prior_dilation_px };
+    // The image seeds' residual; none without image seeds (the tracked seeds alone).
+    let seeding = if n2 > 0 { Some(shown.residual(seeds_removal)?) } else { None };
     // Tracked from the prior (before the growth or the connectivity filter thins the starts).
     let tracked = match exclude {
         Some(s) if intersect && tracking => {
@@ -169,12 +179,16 @@ pub fn n2_seeds(
                 fit: cfg.track_fit_prior_projection.unwrap_or(seeds_removal.fit),
                 dilation_px: cfg.track_prior_dilation_px.unwrap_or(seeds_removal.dilation_px),
             };
-            // The tracker's own residual where its removal of the prior differs.
-            let own = (track_removal != seeds_removal).then(|| shown.residual(track_removal)).transpose()?;
-            let own_scored = own
-                .as_ref()
-                .map(|r| back_project(&grid, views, &r.support, r.occluded.as_deref(), &r.values, exclude, intersect));
-            let res = Residuals { views, images: own.as_ref().map_or(&*values, |r| &*r.values), levels: &levels };
+            // The tracker reads the image seeds' residual unless it removes the prior its own way.
+            let own;
+            let read = match &seeding {
+                Some(r) if track_removal == seeds_removal => r,
+                _ => {
+                    own = shown.residual(track_removal)?;
+                    &own
+                }
+            };
+            let res = Residuals { views, images: &read.values, levels: &levels };
             let settings = TrackSettings {
                 start_mm: cfg.track_start_mm,
                 level: cfg.track_level,
@@ -184,9 +198,12 @@ pub fn n2_seeds(
                 max_points: cfg.track_max_points,
                 rounds: cfg.track_rounds,
             };
-            track_from_prior(&res, own_scored.as_ref().unwrap_or(&scored), s, settings)
+            track_from_prior(&res, &read.scored, s, settings)
         }
         _ => Vec::new(),
+    };
+    let Some(Residual { support, occluded, mut scored, .. }) = seeding else {
+        return Ok(tracked);
     };
     // Not for the mask-only mode, which ignores the prior by design.
     let (mut spacing_mm, mut n) = (cfg.seed_spacing_mm_for(views.len()), n2);
@@ -217,11 +234,13 @@ struct PriorRemoval {
 }
 
 /// What the views show beside the prior: per view the support mask and the image that scores the
-/// voxels, and (`init.occluded_views_support`) the masks where the prior hides a vessel.
+/// voxels, (`init.occluded_views_support`, intersect modes) the masks where the prior hides a
+/// vessel, and the back-projection's supported voxels.
 struct Residual<'a> {
     support: Vec<Mask>,
     values: Cow<'a, [Image]>,
     occluded: Option<Vec<Mask>>,
+    scored: Vec<Scored>,
 }
 
 /// The inputs from which [`Residual`]s are taken (one per [`PriorRemoval`]).
@@ -235,26 +254,55 @@ struct ResidualViews<'a> {
     /// Each view's vessel mask and vessel level (contrast × mm).
     masks: &'a [Mask],
     levels: &'a [f64],
+    /// The back-projection's grid, the solid its voxels must lie outside, and whether every view
+    /// must support a voxel.
+    grid: &'a Grid,
+    exclude: Option<&'a Volume<u8>>,
+    intersect: bool,
 }
 
 impl<'a> ResidualViews<'a> {
+    /// The residual with the prior removed as `removal` says, back-projected.
     fn residual(&self, removal: PriorRemoval) -> Result<Residual<'a>> {
+        let mut r = self.shown(removal)?;
+        r.occluded = r.occluded.filter(|_| self.intersect);
+        r.scored = back_project(
+            self.grid,
+            self.views,
+            &r.support,
+            r.occluded.as_deref(),
+            &r.values,
+            self.exclude,
+            self.intersect,
+        );
+        Ok(r)
+    }
+
+    /// The residual before its back-projection (`scored` empty).
+    fn shown(&self, removal: PriorRemoval) -> Result<Residual<'a>> {
         let (cfg, views, images) = (self.cfg, self.views, self.images);
         let mut values: Cow<'a, [Image]> = Cow::Borrowed(images);
         if cfg.n2_mode == SeedMode::AllViewsIntersect {
             let support = self.masks.iter().map(|m| m.dilated(cfg.residual_dilation_px)).collect();
-            return Ok(Residual { support, values, occluded: None });
+            return Ok(Residual { support, values, occluded: None, scored: Vec::new() });
         }
         let Some(s) = self.solid else {
             return Err(CoreError::invalid(format!("init.n2_mode {:?} needs a prior mesh", cfg.n2_mode)));
         };
-        let prior_sil: Vec<Mask> = silhouettes(s, views).iter().map(|p| p.dilated(removal.dilation_px)).collect();
-        let occluded = (cfg.occluded_views_support && views.len() >= cfg.occluded_min_views).then(|| {
+        let subtracted = self.prior.filter(|_| cfg.subtract_prior);
+        let occluded_support = cfg.occluded_views_support && views.len() >= cfg.occluded_min_views;
+        // The prior's dilated silhouettes, where something reads them.
+        let prior_sil: Vec<Mask> = if subtracted.is_none() || occluded_support {
+            silhouettes(s, views).iter().map(|p| p.dilated(removal.dilation_px)).collect()
+        } else {
+            Vec::new()
+        };
+        let occluded = occluded_support.then(|| {
             self.masks.iter().zip(&prior_sil).map(|(m, p)| m.dilated(cfg.residual_dilation_px).and(p)).collect()
         });
         let mut support = Vec::with_capacity(views.len());
-        for (vi, (m, p)) in self.masks.iter().zip(&prior_sil).enumerate() {
-            let shown = match self.prior.filter(|_| cfg.subtract_prior) {
+        for (vi, m) in self.masks.iter().enumerate() {
+            let shown = match subtracted {
                 // The prior's projection subtracted instead of masked: a pixel shows residual
                 // where the image exceeds the prior's chord (the longest within the dilation:
                 // the grey-level analogue of dilating its silhouette) at the fitted contrast per
@@ -274,11 +322,11 @@ impl<'a> ResidualViews<'a> {
                     values.to_mut()[vi] = rest;
                     shown
                 }
-                None => m.minus(p),
+                None => m.minus(&prior_sil[vi]),
             };
             support.push(shown.dilated(cfg.residual_dilation_px));
         }
-        Ok(Residual { support, values, occluded })
+        Ok(Residual { support, values, occluded, scored: Vec::new() })
     }
 }
 
