@@ -604,6 +604,12 @@ pub(crate) mod tests {
         assert_eq!(on(&two, near), 0, "not applied below occluded_min_views");
     }
 
+    /// A model seeded by its tracks alone (no image seeds), the prior subtracted and dilated by
+    /// a pixel, tracking with two views.
+    fn tracks_only() -> InitConfig {
+        InitConfig { n2: 0, track_max_views: 2, prior_dilation_px: 1, subtract_prior: true, ..InitConfig::default() }
+    }
+
     /// The prior-only member's seeds (`run.member_tracks_max_views`): with `n2 = 0` and
     /// tracking on, the tracks alone, along the vessel that leaves the prior.
     #[test]
@@ -611,13 +617,7 @@ pub(crate) mod tests {
         let (_, views, _, bounds) = scene();
         let leaving = ([2.0, 0.0, 0.5], [6.0, 4.0, 11.0]);
         let (prior, images) = prior_and_images(PRIOR, &[leaving], &views[..2], &bounds);
-        let cfg = InitConfig {
-            n2: 0,
-            track_max_views: 2,
-            prior_dilation_px: 1,
-            subtract_prior: true,
-            ..InitConfig::default()
-        };
+        let cfg = tracks_only();
         let seeds = n2_seeds(&cfg, &views[..2], &images, Some(&prior), &bounds, 0.4, 7).unwrap();
         let on = seeds.iter().filter(|p| to_segment(**p, leaving.0, leaving.1) < 1.5).count();
         eprintln!("{on} of {} tracked seeds on the vessel", seeds.len());
@@ -649,13 +649,7 @@ pub(crate) mod tests {
         let leaving = ([2.0, 0.0, 0.5], [6.0, 4.0, 11.0]);
         let (prior, images) = prior_and_images(PRIOR, &[leaving], &views[..2], &bounds);
         let seeds = |cfg: &InitConfig| n2_seeds(cfg, &views[..2], &images, Some(&prior), &bounds, 0.4, 7).unwrap();
-        let base = InitConfig {
-            n2: 0,
-            track_max_views: 2,
-            prior_dilation_px: 1,
-            subtract_prior: true,
-            ..InitConfig::default()
-        };
+        let base = tracks_only();
         let fitted = InitConfig { fit_prior_projection: true, prior_dilation_px: 0, ..base.clone() };
         let own =
             InitConfig { track_fit_prior_projection: Some(true), track_prior_dilation_px: Some(0), ..base.clone() };
