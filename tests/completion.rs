@@ -790,3 +790,33 @@ fn report_page_renders_its_images_in_headless_chromium() {
     eprintln!("chromium: the 3-D view drew {drawn} non-background pixels");
     assert!(drawn > 500, "the 3-D view's canvas is (nearly) blank: {drawn} pixels drawn");
 }
+
+/// `run.member_iterations` stops the prior-only member early on the run's schedule; a resume
+/// with a longer one trains the member on from its checkpoint, the finished run untouched.
+#[test]
+fn the_prior_only_member_stops_at_member_iterations() {
+    let iterations = 10;
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("member-iterations-{}", std::process::id()));
+    let device = Device::ndarray().autodiff();
+    let mut cfg = tiny_config(iterations);
+    cfg.run.prior_only_member = true;
+    cfg.run.member_iterations = 4;
+    let finish = |cfg: Config, start: Start| -> RunSummary {
+        match run_completion(tiny_case(), cfg, device.clone(), &dir, start, &mut Silent).expect("run") {
+            Outcome::Finished(s) => *s,
+            Outcome::Interrupted { .. } => panic!("not asked to stop"),
+        }
+    };
+    let steps = |s: &RunSummary| {
+        let member = s.prior_only_member.as_ref().expect("the member is in the summary");
+        (s.training_time.as_ref().map(|t| t.steps), member.training_time.as_ref().map(|t| t.steps))
+    };
+    let short = finish(cfg.clone(), Start::Overwrite);
+    assert_eq!(steps(&short), (Some(iterations), Some(4)), "the run to its end, the member to step 4");
+    let member_checkpoints = Trainer::checkpoints(&dir.join("prior-only-member").join("checkpoints"));
+    let last = member_checkpoints.last().expect("the member's checkpoint");
+    assert!(last.ends_with("ckpt-0000004"), "{}", last.display());
+    cfg.run.member_iterations = 7;
+    let longer = finish(cfg, Start::Resume("latest"));
+    assert_eq!(steps(&longer), (Some(iterations), Some(7)), "the member trained on to step 7, the run not again");
+}

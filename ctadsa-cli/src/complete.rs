@@ -89,19 +89,24 @@ impl Monitor for Terminal {
     }
 
     fn started(&mut self, trainer: &Trainer, cfg: &Config) {
+        let steps = cfg.run.steps_to_train();
+        let length = if steps < cfg.run.iterations {
+            format!("{steps} of the schedule's {} iterations (run.member_iterations)", cfg.run.iterations)
+        } else {
+            format!("{steps} iterations")
+        };
         eprintln!(
-            "{} views of {}×{} px, {} Gaussians ({} on the prior, {} from the images), {} iterations",
+            "{} views of {}×{} px, {} Gaussians ({} on the prior, {} from the images), {length}",
             trainer.views().len(),
             trainer.views().image_size().0,
             trainer.views().image_size().1,
             trainer.model().len(),
             trainer.seed_counts().0,
             trainer.seed_counts().1,
-            cfg.run.iterations
         );
-        self.iterations = cfg.run.iterations;
+        self.iterations = steps;
         self.pb.finish();
-        self.pb = bar(cfg.run.iterations as u64, "complete");
+        self.pb = bar(steps as u64, "complete");
         self.pb.set_position(trainer.iteration() as u64);
         self.first = trainer.iteration();
         self.began = Instant::now();

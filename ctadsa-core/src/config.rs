@@ -64,6 +64,23 @@ pub struct RunConfig {
     /// more of the missing vessels while, in the mean, the image-seeded models' ghosts still
     /// fall to half their density. 0 = the member has no image seeds.
     pub member_tracks_max_views: usize,
+    /// The prior-only member stops after this many steps of the run's schedule (its learning
+    /// rates, densification and loss terms keep the run's steps); 0 = `run.iterations`. Trained
+    /// as long as a long run's image-seeded models, the member fits the views with its own seeds
+    /// and lays down false surface (docs/RESULTS.md, "The paper's budget at 512²").
+    pub member_iterations: usize,
+    /// Where this configuration's training stops when it is a member's: set by
+    /// [`Config::prior_only_member`] from `run.member_iterations`; `None` = `run.iterations`.
+    #[serde(skip)]
+    pub stop_after: Option<usize>,
+}
+
+impl RunConfig {
+    /// The step the training loop runs to: `stop_after` when set (at most `iterations`),
+    /// otherwise `iterations`.
+    pub fn steps_to_train(&self) -> usize {
+        self.stop_after.map_or(self.iterations, |n| n.min(self.iterations))
+    }
 }
 
 /// Where the reconstruction's working box comes from.
@@ -89,6 +106,8 @@ impl Default for RunConfig {
             prior_only_member: false,
             member_seeds: vec![],
             member_tracks_max_views: 0,
+            member_iterations: 0,
+            stop_after: None,
         }
     }
 }
@@ -816,6 +835,7 @@ impl Config {
             check(n <= MAX_GAUSSIANS, k, "must be at most 20,000,000")?;
         }
         check(self.run.iterations <= 10_000_000, "run.iterations", "must be at most 10,000,000")?;
+        check(self.run.member_iterations <= 10_000_000, "run.member_iterations", "must be at most 10,000,000")?;
         let seeds = &self.run.member_seeds;
         check(seeds.len() <= MAX_MEMBER_SEEDS, "run.member_seeds", "must list at most 8 seeds")?;
         check(
@@ -1045,6 +1065,8 @@ impl Config {
         member.run.prior_only_member = false;
         member.run.member_seeds.clear();
         member.run.member_tracks_max_views = 0;
+        member.run.stop_after = (self.run.member_iterations > 0).then_some(self.run.member_iterations);
+        member.run.member_iterations = 0;
         Some(member)
     }
 }
@@ -1119,6 +1141,20 @@ mod tests {
         assert_eq!((tracked.init.n2_for(2), tracked.init.n2_for(3), tracked.init.n2_mode), (0, 0, on.init.n2_mode));
         assert_eq!(tracked.init.track_max_views, 2, "its seeds are the tracks of runs of up to 2 views");
         assert!(tracked.densify.reseed_at.is_empty() && tracked.run.member_tracks_max_views == 0);
+        assert_eq!((tracked.run.stop_after, tracked.run.steps_to_train()), (None, tracked.run.iterations));
+        let short = Config::load(
+            None,
+            &["run.prior_only_member=true".into(), "run.iterations=300".into(), "run.member_iterations=120".into()],
+        )
+        .unwrap();
+        let short_member = short.prior_only_member().expect("a member");
+        assert_eq!((short.run.steps_to_train(), short_member.run.steps_to_train()), (300, 120));
+        assert_eq!(short_member.run.iterations, 300, "the member keeps the run's schedule");
+        let mut long = short.clone();
+        long.run.member_iterations = 500;
+        assert_eq!(long.prior_only_member().unwrap().run.steps_to_train(), 300, "never past the run's end");
+        let err = Config::load(None, &["run.member_iterations=20000000".into()]).unwrap_err().to_string();
+        assert!(err.contains("run.member_iterations"), "{err}");
         let unseeded = Config::load(None, &["run.prior_only_member=true".into(), "init.n2=0".into()]).unwrap();
         assert!(unseeded.prior_only_member().is_none(), "without image seeds the member would be the run");
         let no_prior = Config::load(None, &["run.prior_only_member=true".into(), "init.n1=0".into()]).unwrap();

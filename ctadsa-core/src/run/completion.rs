@@ -265,18 +265,20 @@ enum Trained {
     Stopped(PathBuf),
 }
 
-/// Trains `trainer` to `cfg.run.iterations`, checkpointing into `out/checkpoints`.
+/// Trains `trainer` to [`RunConfig::steps_to_train`](crate::config::RunConfig::steps_to_train)
+/// (`run.iterations`, or a member's `run.member_iterations`), checkpointing into `out/checkpoints`.
 fn train(mut trainer: Trainer, cfg: &Config, out: &Path, monitor: &mut dyn Monitor) -> Result<Trained> {
     let ck_dir = out.join("checkpoints");
     monitor.started(&trainer, cfg);
     let _phase = TrainingPhase::start();
     let mut warned = false;
-    while trainer.iteration() < cfg.run.iterations {
+    let until = cfg.run.steps_to_train();
+    while trainer.iteration() < until {
         trainer.step()?;
         let logged = trainer.new_logs();
         monitor.stepped(&trainer, &logged);
         let every = cfg.run.checkpoint_every;
-        if every > 0 && trainer.iteration().is_multiple_of(every) && trainer.iteration() < cfg.run.iterations {
+        if every > 0 && trainer.iteration().is_multiple_of(every) && trainer.iteration() < until {
             trainer.save_checkpoint(&ck_dir)?;
             warn_if_constant(&trainer, &mut warned, monitor);
         }
