@@ -67,7 +67,7 @@ pub struct RunConfig {
     /// The prior-only member stops after this many steps of the run's schedule (its learning
     /// rates, densification and loss terms keep the run's steps); 0 = `run.iterations`. Trained
     /// as long as a long run's image-seeded models, the member fits the views with its own seeds
-    /// and lays down false surface (docs/RESULTS.md, "The paper's budget at 512²").
+    /// and lays down false surface (docs/RESULTS.md, "`configs/paper.toml`").
     pub member_iterations: usize,
     /// Where this configuration's training stops when it is a member's: set by
     /// [`Config::prior_only_member`] from `run.member_iterations`; `None` = `run.iterations`.
@@ -730,8 +730,9 @@ fn load_table(path: &Path, depth: usize) -> Result<toml::Table> {
 /// `configs/quick.toml`, built in (the demo's and the benchmarks' configuration).
 pub const QUICK_TOML: &str = include_str!("../../configs/quick.toml");
 
-/// `configs/paper.toml`, built in.
-pub const PAPER_TOML: &str = include_str!("../../configs/paper.toml");
+/// `configs/baselines/paper-method.toml` (the paper's method and schedule), built in: the
+/// workload of the paper rows of `ctadsa bench`.
+pub const PAPER_METHOD_TOML: &str = include_str!("../../configs/baselines/paper-method.toml");
 
 impl Config {
     /// The built-in quick configuration ([`QUICK_TOML`]) with `key=value` overrides.
@@ -739,9 +740,9 @@ impl Config {
         Self::from_toml_str(QUICK_TOML, "configs/quick.toml", overrides)
     }
 
-    /// The built-in paper configuration ([`PAPER_TOML`]) with `key=value` overrides.
-    pub fn paper(overrides: &[String]) -> Result<Self> {
-        Self::from_toml_str(PAPER_TOML, "configs/paper.toml", overrides)
+    /// The built-in paper-method baseline ([`PAPER_METHOD_TOML`]) with `key=value` overrides.
+    pub fn paper_method(overrides: &[String]) -> Result<Self> {
+        Self::from_toml_str(PAPER_METHOD_TOML, "configs/baselines/paper-method.toml", overrides)
     }
 
     /// Reads a TOML file and applies `key=value` overrides. A file may start from another one
