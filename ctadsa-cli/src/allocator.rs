@@ -4,9 +4,9 @@
 //! hash encoding's Jacobian). With glibc's defaults each thread's arena hands the large ones back
 //! to the kernel on free and the next step faults them in again page by page (`perf`: 13 % of a
 //! paper-scale step in page faults). One arena, a fixed mmap threshold and no trimming keep them
-//! in the heap: `ctadsa bench train --config configs/baselines/paper-method.toml` 214 → 190 ms per step, the peak
-//! resident memory unchanged (docs/PERFORMANCE.md). The same settings can be given to any
-//! program through `MALLOC_ARENA_MAX=1 MALLOC_MMAP_THRESHOLD_=33554432
+//! in the heap: `ctadsa bench train --config configs/baselines/paper-method.toml` 214 → 190 ms
+//! per step, the peak resident memory unchanged (docs/PERFORMANCE.md). The same settings can be
+//! given to any program through `MALLOC_ARENA_MAX=1 MALLOC_MMAP_THRESHOLD_=33554432
 //! MALLOC_TRIM_THRESHOLD_=2147483647`.
 
 /// Applies the settings; call first thing in `main`, before any thread exists. Settings the

@@ -23,8 +23,8 @@ fn cpu_model() -> String {
         .unwrap_or_else(|| "unknown CPU".into())
 }
 
-/// One row: `steps` timed steps of the built-in paper-method baseline (or quick configuration) with `sets` on
-/// `case`.
+/// One row: `steps` timed steps of the built-in paper-method baseline (or quick configuration)
+/// with `sets` on `case`.
 fn bench_row(case: &Path, paper: bool, sets: &[&str], steps: usize, backend: BackendKind) -> Result<TrainBenchReport> {
     let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
     let cfg = if paper { Config::paper_method(&sets)? } else { Config::quick(&sets)? };
