@@ -108,8 +108,15 @@ fn shipped_configs_load_and_matrices_point_at_them() {
     // The centreline traced on a finer grid and across beads (an output of the 512² runs only).
     assert!(fine.output.centreline_voxel_mm > 0.0 && quick.output.centreline_voxel_mm == 0.0);
     assert!(fine.output.centreline_bridge_fraction > 0.0 && quick.output.centreline_bridge_fraction == 0.0);
+    // Two-view runs trace it with a wider cover and lower bridges; three-view runs do not change.
+    assert_eq!(fine.output.centreline_const_mm_for(3), quick.output.centreline_const_mm);
+    assert!(fine.output.centreline_const_mm_for(2) > fine.output.centreline_const_mm_for(3));
+    let bridge_two_views = fine.output.centreline_bridge_fraction_for(2);
+    assert!(bridge_two_views > 0.0 && bridge_two_views < fine.output.centreline_bridge_fraction_for(3));
     fine.output.centreline_voxel_mm = quick.output.centreline_voxel_mm;
     fine.output.centreline_bridge_fraction = quick.output.centreline_bridge_fraction;
+    fine.output.centreline_const_mm_two_views = None;
+    fine.output.centreline_bridge_fraction_two_views = None;
     fine.output.centreline_bridge_prior_clearance_mm = quick.output.centreline_bridge_prior_clearance_mm;
     // Both cut two-view surfaces lower beside the prior, at the threshold three-view runs
     // match their masks at already (so three-view runs do not change).

@@ -557,6 +557,13 @@ pub struct OutputConfig {
     /// `centreline_const_mm` of it (larger: fewer, longer branches).
     pub centreline_scale: f64,
     pub centreline_const_mm: f64,
+    /// `centreline_const_mm` for runs of two views or fewer (absent: the same). With two
+    /// views many new pieces are doubles beside a found vessel or stubs leaving the prior at
+    /// the wrong place; a wider cover traces fewer of them. 2.0 (with
+    /// `centreline_bridge_fraction_two_views = 0.5`) kept the 2-view recall of the missing
+    /// centreline and raised its precision by 1.9 points on the 8 BraVa trees, on each of
+    /// three seed pairs (docs/RESULTS.md, "Two views: where the centreline loses").
+    pub centreline_const_mm_two_views: Option<f64>,
     /// Terminal centreline branches shorter than this are removed (mm).
     pub centreline_min_branch_mm: f64,
     /// Centre the new vessels' centreline nodes on the extracted surface (sub-voxel:
@@ -576,6 +583,8 @@ pub struct OutputConfig {
     /// solid and connect to it, so that a thin vessel the level cuts into beads gives one
     /// branch instead of none. The surface is not changed.
     pub centreline_bridge_fraction: f64,
+    /// `centreline_bridge_fraction` for runs of two views or fewer (absent: the same).
+    pub centreline_bridge_fraction_two_views: Option<f64>,
     pub centreline_bridge_mm: f64,
     /// No bridge voxel lies within this distance (mm) of the prior's voxels (0 = no clearance):
     /// next to the prior the bridges join spurs and ghosts more than vessels (8 BraVa trees,
@@ -601,6 +610,18 @@ impl OutputConfig {
             general
         }
     }
+
+    /// The centreline's cover constant (mm) for a run of `views` views (`centreline_const_mm`,
+    /// `centreline_const_mm_two_views`).
+    pub fn centreline_const_mm_for(&self, views: usize) -> f64 {
+        self.centreline_const_mm_two_views.filter(|_| views <= 2).unwrap_or(self.centreline_const_mm)
+    }
+
+    /// The bead-joining fraction for a run of `views` views (`centreline_bridge_fraction`,
+    /// `centreline_bridge_fraction_two_views`).
+    pub fn centreline_bridge_fraction_for(&self, views: usize) -> f64 {
+        self.centreline_bridge_fraction_two_views.filter(|_| views <= 2).unwrap_or(self.centreline_bridge_fraction)
+    }
 }
 
 impl Default for OutputConfig {
@@ -625,10 +646,12 @@ impl Default for OutputConfig {
             near_prior_mm: 2.0,
             centreline_scale: 1.5,
             centreline_const_mm: 1.0,
+            centreline_const_mm_two_views: None,
             centreline_min_branch_mm: 1.0,
             centreline_centring: true,
             centreline_voxel_mm: 0.0,
             centreline_bridge_fraction: 0.0,
+            centreline_bridge_fraction_two_views: None,
             centreline_bridge_mm: 1.0,
             centreline_bridge_prior_clearance_mm: 0.0,
             min_confidence: 0.0,
@@ -951,6 +974,11 @@ impl Config {
             "must be in [0, 1)",
         )?;
         check(
+            self.output.centreline_bridge_fraction_two_views.is_none_or(|f| (0.0..1.0).contains(&f)),
+            "output.centreline_bridge_fraction_two_views",
+            "must be in [0, 1)",
+        )?;
+        check(
             (0.0..=10.0).contains(&self.output.centreline_bridge_mm),
             "output.centreline_bridge_mm",
             "must be in [0, 10] mm",
@@ -1006,6 +1034,7 @@ impl Config {
         check((0.0..=10.0).contains(&self.output.centreline_scale), "output.centreline_scale", "must be in [0, 10]")?;
         for (v, k) in [
             (self.output.centreline_const_mm, "output.centreline_const_mm"),
+            (self.output.centreline_const_mm_two_views.unwrap_or(0.0), "output.centreline_const_mm_two_views"),
             (self.output.centreline_min_branch_mm, "output.centreline_min_branch_mm"),
         ] {
             check((0.0..=100.0).contains(&v), k, "must be in [0, 100] mm")?;
@@ -1102,6 +1131,29 @@ mod tests {
         assert_eq!(out.level_mask_threshold_for(3, 0.05), 0.03);
         out.level_mask_threshold_two_views = 0.0;
         assert_eq!(out.level_mask_threshold_for(2, 0.05), 0.03, "0 falls back to the general threshold");
+    }
+
+    #[test]
+    fn two_view_runs_trace_the_centreline_with_their_own_settings() {
+        let cfg = Config::load(
+            None,
+            &[
+                "output.centreline_const_mm=1.0".into(),
+                "output.centreline_bridge_fraction=0.7".into(),
+                "output.centreline_const_mm_two_views=2.0".into(),
+                "output.centreline_bridge_fraction_two_views=0.5".into(),
+            ],
+        )
+        .unwrap();
+        let out = &cfg.output;
+        assert_eq!((out.centreline_const_mm_for(3), out.centreline_bridge_fraction_for(3)), (1.0, 0.7));
+        assert_eq!((out.centreline_const_mm_for(2), out.centreline_bridge_fraction_for(2)), (2.0, 0.5));
+        let plain = OutputConfig { centreline_const_mm: 1.5, ..OutputConfig::default() };
+        assert_eq!(plain.centreline_const_mm_for(2), 1.5, "absent: the general setting");
+        for bad in ["output.centreline_bridge_fraction_two_views=1.0", "output.centreline_const_mm_two_views=-1"] {
+            let err = Config::load(None, &[bad.into()]).unwrap_err().to_string();
+            assert!(err.contains(bad.split('=').next().unwrap()), "{err}");
+        }
     }
 
     #[test]

@@ -484,7 +484,7 @@ struct TracedSolid<'a> {
     /// The prior mesh and its voxels on this grid.
     prior: Option<&'a TriMesh>,
     prior_voxels: Option<Volume<u8>>,
-    /// With `output.centreline_bridge_fraction`: the extracted solid and the faint voxels
+    /// With `output.centreline_bridge_fraction` (`…_two_views`): the extracted solid and the faint voxels
     /// between its beads ([`bridged_solid`]).
     bridges: Option<Volume<u8>>,
 }
@@ -503,20 +503,15 @@ fn traced_solid<'a>(
 ) -> Result<TracedSolid<'a>> {
     let out = &trainer.cfg().output;
     let voxel = out.centreline_voxel_mm;
+    let bridge_fraction = out.centreline_bridge_fraction_for(trainer.views().views().len());
     let bridges = |density: &Volume<f32>, above: &Volume<u8>, prior_voxels: Option<&Volume<u8>>| {
-        (out.centreline_bridge_fraction > 0.0).then(|| {
+        (bridge_fraction > 0.0).then(|| {
             let voxels = |mm: f64| (mm / density.grid.spacing_mm[0]).round() as usize;
             let clear = (out.centreline_bridge_prior_clearance_mm > 0.0)
                 .then_some(prior_voxels)
                 .flatten()
                 .map(|p| (p, voxels(out.centreline_bridge_prior_clearance_mm)));
-            bridged_solid(
-                density,
-                above,
-                out.centreline_bridge_fraction * surface.level,
-                voxels(out.centreline_bridge_mm),
-                clear,
-            )
+            bridged_solid(density, above, bridge_fraction * surface.level, voxels(out.centreline_bridge_mm), clear)
         })
     };
     if voxel <= 0.0 || voxel >= volume.grid.spacing_mm[0] {
@@ -564,7 +559,7 @@ fn write_centreline_of(
         (defaults.min_component_voxels as f64 * (working_voxel / traced_voxel).powi(3)).round() as usize;
     let params = SkeletonParams {
         scale: out.centreline_scale,
-        const_mm: out.centreline_const_mm,
+        const_mm: out.centreline_const_mm_for(views.len()),
         min_branch_mm: out.centreline_min_branch_mm,
         min_component_voxels,
         ..defaults
