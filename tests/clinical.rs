@@ -18,8 +18,11 @@ use ctadsa_core::data::tree::prior::PriorThreshold;
 use ctadsa_core::data::volume::nifti_io::{read_nifti, write_nifti};
 use ctadsa_render::{ConeBeamView, TigreGeometry};
 
+mod scratch;
+use scratch::scratch;
+
 fn tmp(name: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("clinical-{name}-{}", std::process::id()))
+    scratch(&format!("clinical-{name}"))
 }
 
 fn spec(frames: Vec<Vec<u16>>, w: u16, h: u16, g: &TigreGeometry) -> XaRunSpec {

@@ -14,6 +14,9 @@ use ctadsa_core::method::train::{StepLog, Trainer};
 use ctadsa_core::output::export::{RunSummary, write_outputs};
 use ctadsa_core::run::completion::{Monitor, Outcome, Silent, Start, run_completion};
 
+mod scratch;
+use scratch::scratch;
+
 /// `configs/quick.toml`, compiled in (the test binary runs where the source tree is not, e.g. on
 /// a GPU machine).
 const QUICK_TOML: &str = include_str!(concat!(env!("CARGO_MANIFEST_DIR"), "/configs/quick.toml"));
@@ -42,7 +45,7 @@ fn tiny_config(iterations: usize) -> Config {
 fn tiny_case() -> &'static Case {
     static CASE: OnceLock<Case> = OnceLock::new();
     CASE.get_or_init(|| {
-        let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("tiny-case-{}", std::process::id()));
+        let dir = scratch("tiny-case");
         let cfg = SynthConfig::small_procedural("tiny");
         synthesize(&cfg, &dir, &mut |_| {}).expect("synthesis");
         Case::load(&dir).expect("case loads")
@@ -60,7 +63,7 @@ impl Monitor for History {
 
 /// A whole run of the tiny case through the library's run loop (what `ctadsa complete` runs).
 fn run(device: Device, iterations: usize, out: &str) -> (Vec<StepLog>, RunSummary) {
-    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("{out}-{}", std::process::id()));
+    let dir = scratch(out);
     let mut history = History(Vec::new());
     let outcome =
         run_completion(tiny_case(), tiny_config(iterations), device.autodiff(), &dir, Start::Overwrite, &mut history)
@@ -107,7 +110,7 @@ fn completion_recovers_the_missing_vessels() {
 /// The run's centreline: SWC that the project's reader reads back node for node, VTK PolyData
 /// that VTK opens with the same points, lines and radii, and scores against the true tree.
 fn check_centreline(s: &RunSummary, out: &str) {
-    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("{out}-{}", std::process::id()));
+    let dir = scratch(out);
     let c = &s.centreline;
     let scores = c.scores.expect("the case has a true tree");
     eprintln!("tiny centreline: {c:?}");
@@ -130,7 +133,7 @@ fn check_centreline(s: &RunSummary, out: &str) {
 /// voxel (0.2 mm) and through the faint gaps between beads away from the prior: the surface and its scores stay as
 /// they were, the centreline is traced on the finer grid and still scores.
 fn check_finer_centreline(coarse: &RunSummary, out: &str) {
-    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("{out}-{}", std::process::id()));
+    let dir = scratch(out);
     let mesh = std::fs::read(dir.join("mesh.obj")).expect("mesh.obj");
     let mut cfg = tiny_config(coarse.iterations);
     cfg.output.centreline_voxel_mm = 0.2;
@@ -263,7 +266,7 @@ fn assert_resume_is_exact(cfg: Config, at: usize, tag: &str) {
     let case = tiny_case();
     let total = cfg.run.iterations;
     let device = Device::ndarray().autodiff();
-    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("tiny-resume-{tag}-{}", std::process::id()));
+    let dir = scratch(&format!("tiny-resume-{tag}"));
     let mut straight = Trainer::new(case, cfg.clone(), device.clone()).unwrap();
     let mut checkpoint = None;
     while straight.iteration() < total {
@@ -274,7 +277,7 @@ fn assert_resume_is_exact(cfg: Config, at: usize, tag: &str) {
     }
     let checkpoint = checkpoint.unwrap();
     // Another case (here: the same files under another name) is refused.
-    let other = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("tiny-other-{tag}-{}", std::process::id()));
+    let other = scratch(&format!("tiny-other-{tag}"));
     copy_dir(&case.dir, &other);
     let text = std::fs::read_to_string(other.join("case.json")).unwrap();
     std::fs::write(other.join("case.json"), text.replacen(&format!("\"{}\"", case.file.name), "\"other\"", 1)).unwrap();
@@ -329,7 +332,7 @@ fn checkpoint_with_the_padded_table_layout_resumes_exactly() {
         out
     };
     let (case, device) = (tiny_case(), Device::ndarray().autodiff());
-    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("tiny-padded-{}", std::process::id()));
+    let dir = scratch("tiny-padded");
     let mut straight = Trainer::new(case, cfg.clone(), device.clone()).unwrap();
     while straight.iteration() < 6 {
         straight.step().unwrap();
@@ -510,7 +513,7 @@ fn a_collapsed_field_is_reported() {
     let mut cfg = tiny_config(iterations);
     cfg.optim.field_weight_decay = 10.0;
     cfg.optim.lr_field = [0.05, 0.05];
-    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("collapsed-{}", std::process::id()));
+    let dir = scratch("collapsed");
     let mut notes = Notes(Vec::new());
     let outcome = run_completion(tiny_case(), cfg, Device::ndarray().autodiff(), &dir, Start::Overwrite, &mut notes)
         .expect("run");
@@ -559,7 +562,7 @@ fn written_density(dir: &std::path::Path) -> Vec<f32> {
 #[test]
 fn the_members_are_trained_resumed_and_averaged_in() {
     let iterations = 20;
-    let base = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("member-{}", std::process::id()));
+    let base = scratch("member");
     let device = Device::ndarray().autodiff();
     let finish = |cfg: Config, dir: &std::path::Path, start: Start| -> RunSummary {
         match run_completion(tiny_case(), cfg, device.clone(), dir, start, &mut History(Vec::new())).expect("run") {
@@ -626,7 +629,7 @@ fn copy_dir(from: &std::path::Path, to: &std::path::Path) {
 fn no_ground_truth_steers_the_method() {
     // The same case without its gt/ folder gives the same completed mesh; scoring is skipped.
     let case = tiny_case();
-    let copy = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("tiny-no-gt-{}", std::process::id()));
+    let copy = scratch("tiny-no-gt");
     copy_dir(&case.dir, &copy);
     std::fs::remove_dir_all(copy.join("gt")).unwrap();
     let blind = Case::load(&copy).unwrap();
@@ -637,7 +640,7 @@ fn no_ground_truth_steers_the_method() {
             trainer.step().unwrap();
         }
         trainer.flush_logs().unwrap();
-        let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("tiny-{name}-{}", std::process::id()));
+        let dir = scratch(&format!("tiny-{name}"));
         let summary = write_outputs(&dir, c, &trainer, &[], None).unwrap();
         // The working box comes from the views and the prior, yet holds the whole tree: it is
         // within a few scan steps of the case's box (the complete tree's box + 1 mm).
@@ -720,7 +723,7 @@ fn chromium() -> Option<PathBuf> {
 #[test]
 fn report_page_renders_its_images_in_headless_chromium() {
     let (_, _) = run(Device::ndarray(), 20, "tiny-report");
-    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("tiny-report-{}", std::process::id()));
+    let dir = scratch("tiny-report");
     let page = ctadsa_core::output::report::write_report(&dir).expect("report");
     let html = std::fs::read_to_string(&page).unwrap();
     assert!(html.contains("data:image/png;base64,") && !html.contains("src=\"renders/"), "images are embedded");
@@ -796,7 +799,7 @@ fn report_page_renders_its_images_in_headless_chromium() {
 #[test]
 fn the_prior_only_member_stops_at_member_iterations() {
     let iterations = 10;
-    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("member-iterations-{}", std::process::id()));
+    let dir = scratch("member-iterations");
     let device = Device::ndarray().autodiff();
     let mut cfg = tiny_config(iterations);
     cfg.run.prior_only_member = true;

@@ -12,6 +12,9 @@ use ctadsa_core::data::synth::{SynthConfig, synthesize};
 use ctadsa_core::method::train::Trainer;
 use ctadsa_ops::readback::Transfers;
 
+mod scratch;
+use scratch::scratch;
+
 const QUICK_TOML: &str = include_str!(concat!(env!("CARGO_MANIFEST_DIR"), "/configs/quick.toml"));
 
 /// Kernel launches per step of the quick configuration at most (measured: 39 on 2026-11-27 with
@@ -31,7 +34,7 @@ fn a_quick_training_step_launches_few_kernels_and_reads_nothing_back() {
         return;
     };
     eprintln!("wgpu adapter: {name}");
-    let dir = std::path::PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("gpu-step-{}", std::process::id()));
+    let dir = scratch("gpu-step");
     synthesize(&SynthConfig::small_procedural("gpu-step"), &dir, &mut |_| {}).expect("synthesis");
     let case = Case::load(&dir).expect("case");
     // Every loss term of the quick configuration active (the anchoring from the first step);

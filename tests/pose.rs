@@ -3,8 +3,6 @@
 //! jointly with the whole completion on a synthetic case made with a known perturbation.
 #![allow(deprecated)] // burn-ndarray is the CPU backend the tests use.
 
-use std::path::PathBuf;
-
 use burn::lr_scheduler::constant::ConstantLr;
 use burn::lr_scheduler::module_lr_scheduler::ModuleLrScheduler;
 use burn::module::ParamGroup;
@@ -21,6 +19,9 @@ use ctadsa_render::{ConeBeamView, Gaussians, RenderSettings, TigreGeometry, View
 use glam::{DQuat, DVec3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
+
+mod scratch;
+use scratch::scratch;
 
 /// Vessel-like Gaussians: chains of elongated blobs along six random curves in a 50 mm box.
 fn vessel_scene(device: &Device) -> (Gaussians, Vec<DVec3>) {
@@ -107,7 +108,7 @@ fn pose_alone_recovers_a_2mm_1deg_perturbation() {
 
 #[test]
 fn joint_refinement_on_a_perturbed_synthetic_case() {
-    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("pose-case-{}", std::process::id()));
+    let dir = scratch("pose-case");
     let cfg = SynthConfig {
         pose_error: Some(PoseErrorSpec { translation_mm: 2.0, rotation_deg: 1.0, seed: 3 }),
         ..SynthConfig::small_procedural("pose-perturbed")

@@ -7,6 +7,10 @@ use std::process::{Command, Output};
 
 use ctadsa_core::data::case::Case;
 
+#[path = "../../tests/scratch/mod.rs"]
+mod scratch;
+use scratch::scratch;
+
 fn ctadsa(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_ctadsa")).args(args).output().expect("ctadsa runs")
 }
@@ -18,7 +22,7 @@ fn ok(args: &[&str]) -> String {
 }
 
 fn tmp(name: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("cli-{name}-{}", std::process::id()))
+    scratch(&format!("cli-{name}"))
 }
 
 fn s(p: &Path) -> &str {

@@ -8,6 +8,10 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::OnceLock;
 
+#[path = "../../tests/scratch/mod.rs"]
+mod scratch;
+use scratch::scratch;
+
 const BIN: &str = env!("CARGO_BIN_EXE_ctadsa");
 
 fn quick_config() -> String {
@@ -16,7 +20,7 @@ fn quick_config() -> String {
 
 /// A fresh folder for one test.
 fn sandbox(name: &str) -> PathBuf {
-    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("malformed-{name}-{}", std::process::id()));
+    let dir = scratch(&format!("malformed-{name}"));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
     dir

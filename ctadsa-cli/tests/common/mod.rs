@@ -4,12 +4,16 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+#[path = "../../../tests/scratch/mod.rs"]
+mod scratch;
+use scratch::scratch;
+
 /// The `ctadsa` binary built for these tests.
 pub const BIN: &str = env!("CARGO_BIN_EXE_ctadsa");
 
-/// A scratch path for one test (removed by the test when it is done).
+/// A scratch path for one test ([`scratch`]: removed by the next run of the test binary).
 pub fn tmp(name: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("cli-{name}-{}", std::process::id()))
+    scratch(&format!("cli-{name}"))
 }
 
 /// A small procedural case (16 terminals, 96² px views binned by 2) from `seed` in `dir`.
