@@ -2,27 +2,22 @@
 //! dciodvfy accepts and dcmdump reads) → import-dsa gives a loadable case with the same views; `prior` makes a mesh from the TopCoW labels; bad paths fail
 //! with a message that names the file.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Output};
 
 use ctadsa_core::data::case::Case;
 
-#[path = "../../tests/scratch/mod.rs"]
-mod scratch;
-use scratch::scratch;
+mod common;
+use common::{BIN, tmp};
 
 fn ctadsa(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_ctadsa")).args(args).output().expect("ctadsa runs")
+    Command::new(BIN).args(args).output().expect("ctadsa runs")
 }
 
 fn ok(args: &[&str]) -> String {
     let out = ctadsa(args);
     assert!(out.status.success(), "ctadsa {args:?} failed:\n{}", String::from_utf8_lossy(&out.stderr));
     String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr)
-}
-
-fn tmp(name: &str) -> PathBuf {
-    scratch(&format!("cli-{name}"))
 }
 
 fn s(p: &Path) -> &str {

@@ -561,7 +561,7 @@ pub struct OutputConfig {
     /// views many new pieces are doubles beside a found vessel or stubs leaving the prior at
     /// the wrong place; a wider cover traces fewer of them. 2.0 (with
     /// `centreline_bridge_fraction_two_views = 0.5`) kept the 2-view recall of the missing
-    /// centreline and raised its precision by 1.9 points on the 8 BraVa trees, on each of
+    /// centreline and raised its precision by 1.9–2.4 points on the 8 BraVa trees, on each of
     /// three seed pairs (docs/RESULTS.md, "Two views: where the centreline loses").
     pub centreline_const_mm_two_views: Option<f64>,
     /// Terminal centreline branches shorter than this are removed (mm).

@@ -484,8 +484,8 @@ struct TracedSolid<'a> {
     /// The prior mesh and its voxels on this grid.
     prior: Option<&'a TriMesh>,
     prior_voxels: Option<Volume<u8>>,
-    /// With `output.centreline_bridge_fraction` (`…_two_views`): the extracted solid and the faint voxels
-    /// between its beads ([`bridged_solid`]).
+    /// With `output.centreline_bridge_fraction` (`…_two_views`): the extracted solid and the
+    /// faint voxels between its beads ([`bridged_solid`]).
     bridges: Option<Volume<u8>>,
 }
 
