@@ -42,7 +42,7 @@ pub struct InitConfig {
     /// and that difference scores the voxel (`data::masks::minus_solid`); off: a pixel in the
     /// prior's dilated projection shows none, and a vessel behind the prior in any view is never
     /// seeded. On the 8 BraVa trees (512² views, 3 views) it cuts the ghosts among the seeds
-    /// from 27 to 19 % and lowers CD_ROI on 13 of 16 runs over two seeds (docs/RESULTS.md,
+    /// from 27 to 19 % and lowers CD_ROI on 13 of 16 runs over two seeds (docs/results/settings-2026-11.md,
     /// "The prior subtracted, not masked").
     pub subtract_prior: bool,
     /// With `subtract_prior`: the prior's chords are those of its mesh moved outward by the
@@ -82,7 +82,7 @@ pub struct InitConfig {
     /// least `grow_claims_spacing_mm` apart, instead of `n2` and `seed_spacing_mm`. 0 = off:
     /// on the 8 BraVa trees with 2 views it halves the ghosts among the seeds and seeds a third
     /// more of the missing centreline, and leaves the trained result within the run-to-run
-    /// spread (docs/RESULTS.md, "Two views: what the seeds change").
+    /// spread (docs/results/settings-2026-11.md, "Two views: what the seeds change").
     pub grow_claims_mm: f64,
     /// Image seeds with `grow_claims_mm` (at most).
     pub grow_claims_n2: usize,
@@ -104,7 +104,7 @@ pub struct InitConfig {
     /// in ghosts wherever two vessels share a detector row, and more seeds seed more of them:
     /// on the 8 BraVa trees (512² views) 20,000 seeds 1 mm apart raised CD_ROI with 2 views by
     /// 0.25 mm (worse on 4 of 4 trees) while 10,000 seeds 0.7 mm apart left it level with 3
-    /// views (docs/RESULTS.md, "Denser image seeds with three views").
+    /// views (docs/results/settings-2026-11.md, "Denser image seeds with three views").
     pub n2_two_views: Option<usize>,
     /// `seed_spacing_mm` for runs of two views or fewer (absent: `seed_spacing_mm`).
     pub seed_spacing_mm_two_views: Option<f64>,
@@ -137,7 +137,7 @@ pub struct InitConfig {
     /// tracks and the image seeds then read two residuals, back-projected apart. Fitted and
     /// not dilated (`track_prior_dilation_px = 0`) for the tracks alone, on the 8 BraVa trees
     /// (512² views, quick-512): CD_ROI 0.84 → 0.77 mm with 3 views, 2.09 → 2.06 mm with 2 at
-    /// 3 points less centreline precision (docs/RESULTS.md, "The tracks' own residual").
+    /// 3 points less centreline precision (docs/results/settings-2026-11.md, "The tracks' own residual").
     pub track_fit_prior_projection: Option<bool>,
     /// `prior_dilation_px` for the tracker's residual (absent: as the image seeds').
     pub track_prior_dilation_px: Option<u32>,

@@ -58,7 +58,7 @@ pub struct OutputConfig {
     /// the views' masks at this threshold, where that is lower than the level (0 = off). With
     /// two views (level masks at 0.07) 0.05 within 2 mm lowered CD_ROI and HD95_ROI on 8 of 8
     /// BraVa trees (512²) and the false surface with them; the same threshold everywhere grows
-    /// ghosts far from the prior (docs/RESULTS.md, "Two views: seed reach, what training
+    /// ghosts far from the prior (docs/results/settings-2026-11.md, "Two views: seed reach, what training
     /// keeps, and the iso-level").
     pub near_prior_mask_threshold: f64,
     pub near_prior_mm: f64,
