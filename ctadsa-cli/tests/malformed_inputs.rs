@@ -235,6 +235,39 @@ fn malformed_case_files_are_refused_and_nothing_escapes() {
     copy_dir(valid_case(), &img);
     std::fs::write(img.join("views/ap.tiff"), b"not a tiff").unwrap();
     refused(&dir, &["complete", "--case", "bad-image", "--config", &config, "--out", "out/run"], &["ap.tiff"]);
+    // A blank view (every pixel 0): nothing to fit, refused naming the image.
+    let blank = dir.join("blank-image");
+    copy_dir(valid_case(), &blank);
+    let ap = blank.join("views/ap.tiff");
+    let tiff = ctadsa_core::data::case::images::read_tiff(&ap).unwrap();
+    let zeros = ctadsa_core::data::case::images::Image { data: vec![0.0; tiff.data.len()], ..tiff };
+    ctadsa_core::data::case::images::write_tiff_f32(&ap, &zeros).unwrap();
+    refused(
+        &dir,
+        &["complete", "--case", "blank-image", "--config", &config, "--out", "out/run"],
+        &["ap.tiff", "no positive pixel"],
+    );
+    // A prior in another frame (shifted 300 mm): refused before a working box spans both.
+    let shifted = dir.join("shifted-prior");
+    copy_dir(valid_case(), &shifted);
+    let prior = shifted.join("priors/d1p50mm/prior.obj");
+    let moved: String = std::fs::read_to_string(&prior)
+        .unwrap()
+        .lines()
+        .map(|l| match l.strip_prefix("v ") {
+            Some(xyz) => {
+                let v: Vec<f64> = xyz.split_whitespace().map(|t| t.parse().unwrap()).collect();
+                format!("v {} {} {}\n", v[0] + 300.0, v[1] + 300.0, v[2])
+            }
+            None => format!("{l}\n"),
+        })
+        .collect();
+    std::fs::write(&prior, moved).unwrap();
+    refused(
+        &dir,
+        &["complete", "--case", "shifted-prior", "--config", &config, "--out", "out/run"],
+        &["prior.obj", "world coordinates"],
+    );
     // A view image that is a link to a device or a FIFO: refused before it is opened (reading
     // /dev/zero would never end, opening a FIFO would wait for a writer for ever).
     for (name, target) in [("image-dev-zero", PathBuf::from("/dev/zero")), ("image-fifo", dir.join("a-fifo"))] {

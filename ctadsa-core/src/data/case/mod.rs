@@ -3,6 +3,7 @@
 //! provenance of everything. See `docs/DATA.md` for the format.
 
 pub mod images;
+pub mod prior_check;
 
 use std::path::{Path, PathBuf};
 
@@ -14,6 +15,7 @@ use crate::data::mesh::{TriMesh, io::read_mesh};
 use crate::data::volume::{BoxMm, Grid};
 use crate::error::{CoreError, Result, check_file_name, read_file, write_file};
 use images::{Image, read_image};
+use prior_check::check_prior_in_views;
 
 /// The value of `format` in every case file.
 pub const CASE_FORMAT: &str = "ctadsa-case";
@@ -320,6 +322,16 @@ impl Case {
                     ),
                 ));
             }
+            if img.max() <= 0.0 {
+                return Err(CoreError::format(
+                    &img_path,
+                    format!(
+                        "view `{}` has no positive pixel: the views must show the vessels as positive values \
+                         (line integrals of the contrast: subtracted and log-converted)",
+                        v.name
+                    ),
+                ));
+            }
             views.push(view);
             images.push(img);
         }
@@ -327,9 +339,14 @@ impl Case {
         Ok(Self { dir: dir.to_path_buf(), file, views, images })
     }
 
-    /// The prior mesh, if the case has one.
+    /// The prior mesh, if the case has one; refused when it does not lie where the views look
+    /// ([`check_prior_in_views`]).
     pub fn prior_mesh(&self) -> Result<Option<TriMesh>> {
-        self.file.prior.as_ref().map(|p| read_mesh(&self.dir.join(&p.mesh))).transpose()
+        let Some(prior) = &self.file.prior else { return Ok(None) };
+        let path = self.dir.join(&prior.mesh);
+        let mesh = read_mesh(&path)?;
+        check_prior_in_views(&mesh, self.views.views(), &path)?;
+        Ok(Some(mesh))
     }
 
     /// Path of a file named in the case, relative to the case folder.
