@@ -285,6 +285,8 @@ pub fn bench_train(
 }
 
 pub fn run(args: BenchArgs) -> Result<()> {
+    // Each worker is an OS thread with its own stack: 10^5 of them exhaust the machine.
+    anyhow::ensure!((1..=1024).contains(&args.threads), "--threads must be in 1..=1024, got {}", args.threads);
     rayon::ThreadPoolBuilder::new().num_threads(args.threads).build_global().context("setting up threads")?;
     match args.what {
         BenchWhat::Render { gaussians, size, repeats, backend } => {

@@ -185,6 +185,10 @@ pub fn run(args: SynthArgs) -> Result<()> {
             args.out.clone(),
         ));
     } else {
+        let max = ctadsa_core::data::tree::procedural::MAX_TERMINALS;
+        if !(1..=max).contains(&args.terminals) {
+            anyhow::bail!("--terminals {}: the procedural tree takes 1 to {max} terminals", args.terminals);
+        }
         let p = ProceduralTree { seed: args.seed, terminals: args.terminals, ..Default::default() };
         jobs.push((Anatomy::Procedural(p), format!("procedural-seed{}", args.seed), args.out.clone()));
     }

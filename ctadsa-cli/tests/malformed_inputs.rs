@@ -123,12 +123,17 @@ fn out_of_range_synth_flags_are_refused_naming_the_flag() {
         ("--binning", "1000", "binning"),
         ("--contrast", "nan", "contrast"),
         ("--noise-sigma=-1", "", "noise sigma"),
+        ("--views", "angles:1e300", "angle"),
+        ("--views", "angles:0,0", "twice"),
     ] {
         let mut args = base.to_vec();
         args.extend([flag, value].into_iter().filter(|a| !a.is_empty()));
         refused(&dir, &args, &[expect]);
     }
+    // Growth is quadratic in the terminals: 10^8 would run for days.
+    refused(&dir, &["synth", "--out", "out/c", "--terminals", "100000000"], &["--terminals", "10000 terminals"]);
     refused(&dir, &["bench", "projector", "--voxels", "0"], &["--voxels"]);
+    refused(&dir, &["bench", "--threads", "100000", "projector"], &["--threads"]);
 }
 
 #[test]
@@ -459,4 +464,15 @@ fn malformed_experiment_names_do_not_escape() {
     .unwrap();
     let case = valid_case().to_str().unwrap().to_string();
     refused(&dir, &["experiment", "--matrix", "matrix.toml", "--cases", &case, "--out", "out/m"], &["matrix.toml"]);
+    // A view the case does not have: refused when the matrix is read, not in each cell.
+    std::fs::write(
+        dir.join("views.toml"),
+        format!("views = [[0, 1], [0, 5]]\npriors = []\nset = []\n[[methods]]\nname = \"m\"\nconfig = \"{config}\"\n"),
+    )
+    .unwrap();
+    refused(
+        &dir,
+        &["experiment", "--matrix", "views.toml", "--cases", &case, "--out", "out/m", "--list"],
+        &["views.toml", "[0, 5]", "it has 3"],
+    );
 }

@@ -12,6 +12,12 @@ impl Config {
     pub fn validate(&self) -> Result<()> {
         check(self.run.iterations >= 1, "run.iterations", "must be ≥ 1")?;
         check(self.run.image_binning >= 1, "run.image_binning", "must be ≥ 1")?;
+        let views = &self.run.views;
+        check(
+            (1..views.len()).all(|k| !views[..k].contains(&views[k])),
+            "run.views",
+            format!("{views:?} names a view twice (its pixels would pass for a second direction)"),
+        )?;
         check(self.init.n1 + self.init.n2 >= 1, "init.n1", "n1 + n2 must be ≥ 1")?;
         check((0.0..1.0).contains(&self.init.mask_threshold), "init.mask_threshold", "must be in [0, 1)")?;
         check(

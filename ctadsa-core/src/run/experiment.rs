@@ -12,7 +12,7 @@ use burn::tensor::Device;
 use serde::Deserialize;
 
 use crate::config::Config;
-use crate::data::case::{Case, PriorEntry};
+use crate::data::case::{CASE_FILE, Case, CaseFile, PriorEntry};
 use crate::error::{CoreError, Result, check_file_name, read_file, to_json, write_file};
 use crate::eval::metrics::SurfaceScores;
 use crate::output::export::RunSummary;
@@ -252,6 +252,13 @@ fn cell_metrics(summary: &RunSummary) -> BTreeMap<String, Option<f64>> {
     metrics
 }
 
+/// How many views the case in `dir` has, when its `case.json` can be read.
+fn case_view_count(dir: &Path) -> Option<usize> {
+    let path = dir.join(CASE_FILE);
+    let text = String::from_utf8(read_file(&path).ok()?).ok()?;
+    Some(CaseFile::parse(&text, &path).ok()?.views.len())
+}
+
 impl Experiment {
     /// Reads and checks the matrix file (names usable as folder names, every method's config
     /// valid with the overrides) and lays out its cells for `cases` under `out`.
@@ -314,6 +321,15 @@ impl Experiment {
             let case_name =
                 case_dir.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_else(|| "case".into());
             check_file_name(&case_name, "case folder name").map_err(CoreError::invalid)?;
+            // A view the case does not have fails each of its cells: refused when the matrix is
+            // read. (A case that cannot be read yet says so in its cells.)
+            if let Some(n) = case_view_count(case_dir)
+                && let Some(v) = matrix.views.iter().find(|v| v.iter().any(|&i| i >= n))
+            {
+                return Err(bad(format!(
+                    "the view subset {v:?} names a view that case `{case_name}` lacks (it has {n})"
+                )));
+            }
             for prior in &priors {
                 for views in &matrix.views {
                     for method in &matrix.methods {
@@ -484,6 +500,10 @@ mod tests {
         let views = write("views.toml", format!("views = [[0, 1], [0, 1]]\n{}", method("m")));
         let err = Experiment::load(&views, &[], &dir.join("out"), &[]).unwrap_err().to_string();
         assert!(err.contains("listed twice"), "{err}");
+        // A subset naming one view twice: refused when the matrix is read, not cell by cell.
+        let repeat = write("repeat.toml", format!("views = [[0, 0]]\n{}", method("m")));
+        let err = Experiment::load(&repeat, &[], &dir.join("out"), &[]).unwrap_err().to_string();
+        assert!(err.contains("run.views") && err.contains("twice"), "{err}");
         let good = write("good.toml", format!("views = [[0, 1]]\n{}", method("m")));
         let cases = [dir.join("a/X"), dir.join("b/X")];
         let err = Experiment::load(&good, &cases, &dir.join("out"), &[]).unwrap_err().to_string();

@@ -60,18 +60,32 @@ pub fn view_preset(spec: &str) -> Result<Vec<NamedAngle>> {
                     "unknown view preset `{other}` (ap-lat, ap-lat-oblique, or angles:-90,0,-45/10)"
                 ))
             })?;
-            list.split(',')
+            let views = list
+                .split(',')
                 .enumerate()
                 .map(|(i, item)| {
                     let mut parts = item.split('/');
                     let p = parts.next().unwrap_or("").trim().parse::<f64>();
                     let s = parts.next().map(|s| s.trim().parse::<f64>()).transpose();
-                    match (p, s) {
-                        (Ok(p), Ok(s)) if p.is_finite() => Ok((format!("view{i}"), p, s.unwrap_or(0.0))),
-                        _ => Err(CoreError::invalid(format!("bad angle `{item}` in `{other}`"))),
+                    match (p, s, parts.next()) {
+                        (Ok(p), Ok(s), None)
+                            if (-360.0..=360.0).contains(&p) && s.is_none_or(|s| (-90.0..=90.0).contains(&s)) =>
+                        {
+                            Ok((format!("view{i}"), p, s.unwrap_or(0.0)))
+                        }
+                        _ => Err(CoreError::invalid(format!(
+                            "bad angle `{item}` in `{other}`: primary in −360..360°, secondary in −90..90°"
+                        ))),
                     }
                 })
-                .collect()
+                .collect::<Result<Vec<NamedAngle>>>()?;
+            // The same direction twice would pass one view's pixels off as a second direction.
+            for (k, (_, p, s)) in views.iter().enumerate() {
+                if views[..k].iter().any(|(_, q, t)| (p - q).rem_euclid(360.0) == 0.0 && s == t) {
+                    return Err(CoreError::invalid(format!("`{other}` names the direction {p}/{s}° twice")));
+                }
+            }
+            Ok(views)
         }
     }
 }
@@ -86,6 +100,10 @@ mod tests {
         let v = view_preset("angles:-90,0/15,30").unwrap();
         assert_eq!(v[1], ("view1".to_string(), 0.0, 15.0));
         assert!(view_preset("angles:x").is_err());
+        for bad in ["angles:1e300", "angles:0/nan", "angles:0/100", "angles:0/1/2", "angles:0,360", "angles:-90,0,-90"]
+        {
+            assert!(view_preset(bad).is_err(), "{bad} accepted");
+        }
         assert!(view_preset("nope").is_err());
         let g = GeometryPreset::CArm.geometry(0.0, 0.0, 2);
         assert_eq!(g.detector_px, [512, 512]);

@@ -43,13 +43,17 @@ fn point_segment_distance(p: DVec3, a: DVec3, b: DVec3) -> f64 {
     (p - (a + t * ab)).length()
 }
 
+/// Most terminals a procedural tree may have: growth takes time quadratic in their number
+/// (8,000 take about 17 s on one core) and more would fill the domain with vessel.
+pub const MAX_TERMINALS: usize = 10_000;
+
 impl ProceduralTree {
     /// Grows the tree. Fails only for invalid parameters.
     pub fn generate(&self) -> Result<VesselTree> {
         let [a, b, c] = self.domain_mm;
-        if !(self.terminals >= 1 && a > 0.0 && b > 0.0 && c > 0.0) {
+        if !((1..=MAX_TERMINALS).contains(&self.terminals) && a > 0.0 && b > 0.0 && c > 0.0) {
             return Err(CoreError::invalid(format!(
-                "procedural tree needs ≥ 1 terminal and positive domain semi-axes, got {} and {:?}",
+                "procedural tree needs 1 to {MAX_TERMINALS} terminals and positive domain semi-axes, got {} and {:?}",
                 self.terminals, self.domain_mm
             )));
         }
