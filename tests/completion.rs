@@ -674,6 +674,11 @@ fn no_ground_truth_steers_the_method() {
                 == (p.to_surface_mm <= p.radius_mm + ctadsa_core::eval::surface_metrics::RECALL_SLACK_MM)));
             assert!((b.found - recall).abs() < 1e-9, "found {} vs recall {recall}", b.found);
             eprintln!("tiny case after 30 iterations: {b:?}");
+            // Another case (here: another name in case.json) is not diagnosed with this run.
+            let mut other = c.clone();
+            other.file.name = "another".into();
+            let err = ctadsa_core::eval::diagnose::diagnose_run(&other, &dir).unwrap_err().to_string();
+            assert!(err.contains("summary.json") && err.contains("its own case"), "{err}");
             // The new surface's bands cover all of it.
             let ns = d.new_surface.expect("the case has a prior");
             let banded: f64 = ns.bands.iter().map(|band| band.area_mm2).sum();

@@ -395,6 +395,24 @@ pub fn diagnose_seeds(case: &Case, cfg: &Config) -> Result<SeedCoverage> {
 /// `density.nii.gz`, `summary.json` and the completed mesh) on its synthetic case, which must
 /// have a tree.
 pub fn diagnose_run(case: &Case, run_dir: &Path) -> Result<Diagnosis> {
+    let summary_path = run_dir.join("summary.json");
+    let summary: serde_json::Value = serde_json::from_slice(&read_file(&summary_path)?)
+        .map_err(|e| CoreError::format(&summary_path, format!("invalid run summary: {e}")))?;
+    // Another case's truth would classify the run's vessels silently wrong (summaries written
+    // before 2026-11-30 carry no fingerprint).
+    if let Some(made_on) = summary["case_fingerprint"].as_str()
+        && made_on != case.fingerprint()
+    {
+        return Err(CoreError::format(
+            &summary_path,
+            format!(
+                "the run was made on case `{made_on}`, not on {} (`{}`: name and a hash of case.json); diagnose \
+                 it with its own case",
+                case.dir.display(),
+                case.fingerprint()
+            ),
+        ));
+    }
     let cfg = Config::load(Some(&run_dir.join("config.toml")), &[])?;
     let truth = CaseTruth::load(case)?.ok_or_else(|| CoreError::invalid("the case has no ground truth"))?;
     let missing = truth
@@ -404,9 +422,6 @@ pub fn diagnose_run(case: &Case, run_dir: &Path) -> Result<Diagnosis> {
     let Seeding { views, images, seeds, prior_silhouettes } = seeds_of(case, &cfg)?;
     let prior = case.prior_mesh()?;
     let density = read_nifti(&run_dir.join("density.nii.gz"))?;
-    let summary_path = run_dir.join("summary.json");
-    let summary: serde_json::Value = serde_json::from_slice(&read_file(&summary_path)?)
-        .map_err(|e| CoreError::format(&summary_path, format!("invalid run summary: {e}")))?;
     let level = summary["mc_level"]
         .as_f64()
         .ok_or_else(|| CoreError::format(&summary_path, "no `mc_level` in the run summary"))?;

@@ -44,6 +44,9 @@ use ctadsa_render::ConeBeamView;
 pub struct RunSummary {
     /// The case folder the run used (as given).
     pub case_dir: String,
+    /// The case's [`Case::fingerprint`](crate::data::case::Case::fingerprint) (name and a hash
+    /// of its `case.json`).
+    pub case_fingerprint: String,
     pub iterations: usize,
     pub gaussians: usize,
     pub n1: usize,
@@ -313,6 +316,7 @@ pub fn write_outputs(
     let spread = trainer.density_spread();
     let summary = RunSummary {
         case_dir: case.dir.display().to_string(),
+        case_fingerprint: case.fingerprint(),
         iterations: trainer.iteration(),
         gaussians,
         n1: trainer.seed_counts().0,

@@ -349,6 +349,16 @@ impl Case {
         Ok(Some(mesh))
     }
 
+    /// The case's name and a hash of its `case.json` content (views, geometry, prior, volume):
+    /// what checkpoints and run summaries record, so that a run is resumed and diagnosed only on
+    /// the case it was made on.
+    pub fn fingerprint(&self) -> String {
+        let text = serde_json::to_string(&self.file).unwrap_or_default();
+        // FNV-1a, 64 bits: stable across builds and platforms.
+        let hash = text.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ b as u64).wrapping_mul(0x0100_0000_01b3));
+        format!("{} {hash:016x}", self.file.name)
+    }
+
     /// Path of a file named in the case, relative to the case folder.
     pub fn path(&self, relative: &str) -> PathBuf {
         self.dir.join(relative)

@@ -33,18 +33,10 @@ struct CheckpointState {
     /// settings is refused (absent in checkpoints of older versions).
     #[serde(default)]
     training_settings: Option<String>,
-    /// The case the run belongs to ([`case_fingerprint`]); a resume on another case is refused
+    /// The case the run belongs to ([`Case::fingerprint`]); a resume on another case is refused
     /// (absent in checkpoints of older versions).
     #[serde(default)]
     case: Option<String>,
-}
-
-/// The case's name and a hash of its `case.json` content (views, geometry, prior, volume).
-pub(super) fn case_fingerprint(case: &Case) -> String {
-    let text = serde_json::to_string(&case.file).unwrap_or_default();
-    // FNV-1a, 64 bits: stable across builds and platforms.
-    let hash = text.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ b as u64).wrapping_mul(0x0100_0000_01b3));
-    format!("{} {hash:016x}", case.file.name)
 }
 
 /// The configuration less what may change on resume (`[output]`, `run.iterations`,
@@ -210,7 +202,7 @@ impl Trainer {
                 ));
             }
         }
-        let fingerprint = case_fingerprint(case);
+        let fingerprint = case.fingerprint();
         if let Some(saved) = state.case.as_ref().filter(|saved| **saved != fingerprint) {
             return Err(CoreError::format(
                 &state_path,

@@ -34,7 +34,6 @@ use ctadsa_ops::anchor_op::DeviceGrid;
 use ctadsa_ops::anchor_op::grid::AnchorGrid;
 use ctadsa_ops::optim::FusedAdam;
 
-use checkpoint::case_fingerprint;
 use setup::check_output_grid;
 pub use setup::{estimate_initial_density, prepare_views, run_working_box};
 
@@ -119,7 +118,7 @@ pub struct Trainer {
     settings: RenderSettings,
     /// Per-view pose corrections and their optimizer (`[pose] enabled`).
     poses: Option<(ViewPoses, ModuleOptimizer)>,
-    /// The case's [`case_fingerprint`], saved with every checkpoint.
+    /// The case's [`Case::fingerprint`], saved with every checkpoint.
     case_fingerprint: String,
     /// The prior mesh, for re-seeding (`densify.reseed_at`); its voxels are made when needed.
     prior: Option<TriMesh>,
@@ -188,7 +187,7 @@ impl Trainer {
         let model = GaussianModel::new(&init.gaussians, field, bounds, &device);
         let mut trainer =
             Self::assemble(cfg, device, views, images, prior.as_ref(), model, working_box, voxel_mm, init.n1, init.n2)?;
-        trainer.case_fingerprint = case_fingerprint(case);
+        trainer.case_fingerprint = case.fingerprint();
         Ok(trainer)
     }
 
