@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use burn::tensor::Device;
 
 use crate::config::Config;
-use crate::data::case::Case;
+use crate::data::case::{CASE_FILE, Case};
 use crate::error::{CoreError, Result};
 use crate::method::train::{StepLog, Trainer};
 use crate::output::export::{RunSummary, write_outputs};
@@ -96,6 +96,25 @@ const RUN_OUTPUTS: [&str; 17] = [
     "checkpoints",
 ];
 
+/// The run outputs (files or folders a run writes) that the folder `out` holds, by name.
+fn run_outputs_in(out: &Path) -> Vec<String> {
+    let meshes = ["obj", "ply", "stl"]
+        .into_iter()
+        .flat_map(|f| ["mesh", "mesh-raw", "mesh-extracted"].map(|stem| format!("{stem}.{f}")));
+    let mut names: Vec<String> =
+        RUN_OUTPUTS.iter().map(|n| n.to_string()).chain(meshes).chain([MEMBER_DIR.to_string()]).collect();
+    names.retain(|n| out.join(n).exists());
+    if let Ok(entries) = std::fs::read_dir(out) {
+        names.extend(
+            entries
+                .flatten()
+                .map(|e| e.file_name().to_string_lossy().to_string())
+                .filter(|n| n.starts_with(SEED_MEMBER_PREFIX)),
+        );
+    }
+    names
+}
+
 fn remove(path: &Path) -> Result<()> {
     let removed = if path.is_dir() {
         std::fs::remove_dir_all(path)
@@ -181,6 +200,27 @@ pub fn run_completion(
     start: Start,
     monitor: &mut dyn Monitor,
 ) -> Result<Outcome> {
+    // A run written into a case folder would mix outputs with inputs (and `--overwrite` would
+    // then remove files beside the case's own).
+    if out.join(CASE_FILE).exists() {
+        return Err(CoreError::invalid(format!(
+            "{} is a case folder (it holds {CASE_FILE}): write the run to a folder of its own",
+            out.display()
+        )));
+    }
+    // Files of a run's names that no run left (a user's own mesh.obj, say) would be
+    // overwritten without a word.
+    if matches!(start, Start::Fresh) && !holds_run(out) {
+        let taken = run_outputs_in(out);
+        if !taken.is_empty() {
+            return Err(CoreError::invalid(format!(
+                "{} holds {} but no run: a run would write over it; choose a new or empty folder, or pass \
+                 --overwrite to replace what a run writes",
+                out.display(),
+                taken.iter().map(|n| format!("`{n}`")).collect::<Vec<_>>().join(", ")
+            )));
+        }
+    }
     std::fs::create_dir_all(out).map_err(|e| CoreError::io(out, e))?;
     let trainer = start_trainer(case, &cfg, device.clone(), out, start, monitor)?;
     let (trainer, warned) = match train(trainer, &cfg, out, monitor)? {
