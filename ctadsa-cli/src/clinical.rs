@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use clap::Args;
 use ctadsa_core::data::case::Case;
+use ctadsa_core::data::case::prior_check::check_prior_in_views;
 use ctadsa_core::data::clinical::dsa::Subtraction;
 use ctadsa_core::data::clinical::import::{DsaOptions, DsaView, dsa_view, view_name, write_dsa_case};
 use ctadsa_core::data::clinical::prior::{LabelPriorOptions, Visibility, centred_prior_from_labels, prior_from_labels};
@@ -165,9 +166,19 @@ pub fn import_dsa(args: ImportDsaArgs) -> Result<()> {
     }
     let render_views: Vec<ConeBeamView> =
         views.iter().map(|v| ConeBeamView::from_tigre(&v.geometry)).collect::<Result<_, _>>()?;
+    // A prior outside the views' field (another frame, a missing shift) is refused before the
+    // case is written.
     let prior = match (&args.prior, &args.labels) {
-        (Some(p), _) => Some((read_mesh(p)?, format!("mesh {}", p.display()))),
-        (None, Some(l)) => Some(label_prior(l, &args.label_args, &render_views)?),
+        (Some(p), _) => {
+            let mesh = read_mesh(p)?;
+            check_prior_in_views(&mesh, &render_views, p)?;
+            Some((mesh, format!("mesh {}", p.display())))
+        }
+        (None, Some(l)) => {
+            let (mesh, description) = label_prior(l, &args.label_args, &render_views)?;
+            check_prior_in_views(&mesh, &render_views, l)?;
+            Some((mesh, description))
+        }
         (None, None) => None,
     };
     if prior.is_none() {
@@ -184,7 +195,9 @@ pub fn import_dsa(args: ImportDsaArgs) -> Result<()> {
         vec![],
     )?;
     // Read it back: the same checks `complete` will apply.
-    Case::load(&args.out).with_context(|| format!("the written case {} does not load", args.out.display()))?;
+    Case::load(&args.out)
+        .and_then(|case| case.prior_mesh())
+        .with_context(|| format!("the written case {} does not load", args.out.display()))?;
     println!("case written to {}", args.out.display());
     Ok(())
 }

@@ -291,6 +291,35 @@ fn malformed_case_files_are_refused_and_nothing_escapes() {
     }
 }
 
+#[test]
+fn runs_do_not_write_over_files_they_did_not_make() {
+    let dir = sandbox("out-folder");
+    let config = quick_config();
+    let case = dir.join("case");
+    copy_dir(valid_case(), &case);
+    // A folder of the user's with a mesh of the name a run writes, and no run: refused, kept.
+    std::fs::create_dir_all(dir.join("mine")).unwrap();
+    std::fs::write(dir.join("mine/mesh.obj"), "my own mesh\n").unwrap();
+    let run = |out: &str| {
+        Command::new(BIN)
+            .current_dir(&dir)
+            .args(["complete", "--case", "case", "--config", &config, "--out", out, "--set", "run.iterations=2"])
+            .env("RUST_BACKTRACE", "0")
+            .output()
+            .unwrap()
+    };
+    let out = run("mine");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && stderr.contains("`mesh.obj`") && stderr.contains("--overwrite"), "{stderr}");
+    assert_eq!(std::fs::read_to_string(dir.join("mine/mesh.obj")).unwrap(), "my own mesh\n");
+    // The case folder itself is never a run's folder.
+    let before = files_under(&case);
+    let out = run("case");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && stderr.contains("is a case folder"), "{stderr}");
+    assert_eq!(files_under(&case), before, "files appeared in the case folder");
+}
+
 /// A FIFO at `path` (`mkfifo`); false where the tool is missing.
 fn make_fifo(path: &Path) -> bool {
     let _ = std::fs::remove_file(path);
@@ -449,6 +478,15 @@ fn malformed_dicom_runs_are_refused_naming_the_tag() {
         &["curve fraction"],
     );
     refused(&dir, &["import-dsa", "--run", "ok.dcm", "--out", "out/case", "--binning", "100000"], &["binning"]);
+    // A prior mesh in another frame (300 mm beside the views' field): refused before the case
+    // is written.
+    std::fs::write(dir.join("beside.obj"), "v 300 300 0\nv 301 300 0\nv 300 301 0\nf 1 2 3\n").unwrap();
+    refused(
+        &dir,
+        &["import-dsa", "--run", "ok.dcm", "--prior", "beside.obj", "--out", "out/case"],
+        &["beside.obj", "world coordinates"],
+    );
+    assert!(!dir.join("out/case").exists(), "a case was written with a prior outside the views");
 }
 
 #[test]
