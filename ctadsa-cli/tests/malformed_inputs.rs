@@ -312,6 +312,13 @@ fn runs_do_not_write_over_files_they_did_not_make() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && stderr.contains("`mesh.obj`") && stderr.contains("--overwrite"), "{stderr}");
     assert_eq!(std::fs::read_to_string(dir.join("mine/mesh.obj")).unwrap(), "my own mesh\n");
+    // A folder another live process runs in (process 1 always exists): refused, naming it.
+    let host = std::fs::read_to_string("/proc/sys/kernel/hostname").unwrap_or_default();
+    std::fs::create_dir_all(dir.join("busy")).unwrap();
+    std::fs::write(dir.join("busy/run.lock"), format!("pid 1 on {}", host.trim())).unwrap();
+    let out = run("busy");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && stderr.contains("being run by pid 1"), "{stderr}");
     // The case folder itself is never a run's folder.
     let before = files_under(&case);
     let out = run("case");

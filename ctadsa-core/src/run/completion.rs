@@ -13,6 +13,7 @@ use crate::error::{CoreError, Result};
 use crate::method::train::{StepLog, Trainer};
 use crate::output::export::{RunSummary, write_outputs};
 use crate::output::report::write_report;
+use crate::run::lock::FolderLock;
 
 /// How a run starts in its output folder.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -73,6 +74,9 @@ pub fn holds_run(out: &Path) -> bool {
         || !Trainer::checkpoints(&out.join("checkpoints")).is_empty()
         || !Trainer::checkpoints(&out.join(MEMBER_DIR).join("checkpoints")).is_empty()
 }
+
+/// The lock file of a run folder in use ([`FolderLock`]).
+pub const RUN_LOCK: &str = "run.lock";
 
 /// The files and folders (besides `mesh*.{obj,ply,stl}`, the checkpoints and the member's
 /// folder) that a run writes into its folder; `--overwrite` removes them.
@@ -208,6 +212,8 @@ pub fn run_completion(
             out.display()
         )));
     }
+    // One process per run folder: a second one would mix its checkpoints and outputs in.
+    let _lock = FolderLock::take(out, RUN_LOCK, "the run folder")?;
     // Files of a run's names that no run left (a user's own mesh.obj, say) would be
     // overwritten without a word.
     if matches!(start, Start::Fresh) && !holds_run(out) {
@@ -221,7 +227,6 @@ pub fn run_completion(
             )));
         }
     }
-    std::fs::create_dir_all(out).map_err(|e| CoreError::io(out, e))?;
     let trainer = start_trainer(case, &cfg, device.clone(), out, start, monitor)?;
     let (trainer, warned) = match train(trainer, &cfg, out, monitor)? {
         Trained::Done { trainer, warned } => (*trainer, warned),

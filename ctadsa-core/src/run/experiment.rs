@@ -18,6 +18,7 @@ use crate::eval::metrics::SurfaceScores;
 use crate::output::export::RunSummary;
 use crate::output::plot::{PALETTE, Series, line_plot};
 use crate::run::completion::{Monitor, Outcome, Start, run_completion};
+use crate::run::lock::FolderLock;
 pub use crate::run::results::CellResult;
 use crate::run::results::{configurations_table, mean_std, priors_of, results_csv, results_table};
 
@@ -108,71 +109,8 @@ fn text_hash(text: &str) -> String {
     format!("{hash:016x}")
 }
 
-/// Marks a cell as being run by this process (`cell.lock`, created exclusively); removed when
-/// dropped. A second process on the same cell (a requeued SLURM task beside the first, a matrix
-/// submitted twice) is refused instead of deleting the first one's checkpoints.
-struct CellLock {
-    path: PathBuf,
-}
-
-impl CellLock {
-    fn take(dir: &Path) -> Result<Self> {
-        use std::io::Write as _;
-        std::fs::create_dir_all(dir).map_err(|e| CoreError::io(dir, e))?;
-        let path = dir.join("cell.lock");
-        let holder = format!("pid {} on {}", std::process::id(), hostname());
-        for _ in 0..2 {
-            match std::fs::OpenOptions::new().write(true).create_new(true).open(&path) {
-                Ok(mut f) => {
-                    f.write_all(holder.as_bytes()).map_err(|e| CoreError::io(&path, e))?;
-                    return Ok(Self { path });
-                }
-                Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
-                    let other = crate::error::read_file(&path)
-                        .map(|b| String::from_utf8_lossy(&b).into_owned())
-                        .unwrap_or_default();
-                    // A lock of a process of this machine that is gone (killed with SIGKILL) is
-                    // stale: taken over. Another machine's cannot be checked from here.
-                    if lock_is_stale(&other) {
-                        let _ = std::fs::remove_file(&path);
-                        continue;
-                    }
-                    return Err(CoreError::format(
-                        &path,
-                        format!(
-                            "the cell is being run by {} (remove this file if no such process runs)",
-                            if other.is_empty() { "another process".to_string() } else { other }
-                        ),
-                    ));
-                }
-                Err(e) => return Err(CoreError::io(&path, e)),
-            }
-        }
-        Err(CoreError::format(&path, "cannot take the cell's lock"))
-    }
-}
-
-impl Drop for CellLock {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_file(&self.path);
-    }
-}
-
-fn hostname() -> String {
-    std::fs::read_to_string("/proc/sys/kernel/hostname")
-        .map(|h| h.trim().to_string())
-        .ok()
-        .filter(|h| !h.is_empty())
-        .unwrap_or_else(|| "this machine".into())
-}
-
-/// Whether a lock reads `pid P on <this host>` for a process that no longer exists (Linux).
-fn lock_is_stale(text: &str) -> bool {
-    let Some(rest) = text.strip_prefix("pid ") else { return false };
-    let Some((pid, host)) = rest.split_once(" on ") else { return false };
-    let Ok(pid) = pid.parse::<u32>() else { return false };
-    host == hostname() && Path::new("/proc/self").exists() && !Path::new(&format!("/proc/{pid}")).exists()
-}
+/// The lock file of a cell being run ([`FolderLock`]).
+const CELL_LOCK: &str = "cell.lock";
 
 /// A matrix over cases, with its cells in a fixed order (case, prior, views, method), so that a
 /// cell's index names the same run on every machine.
@@ -375,7 +313,7 @@ impl Experiment {
         overrides.extend(cell.method.set.iter().cloned());
         overrides.push(format!("run.views=[{view_list}]"));
         let cfg = Config::load(Some(&self.matrix_dir.join(&cell.method.config)), &overrides)?;
-        let _lock = CellLock::take(&cell.dir)?;
+        let _lock = FolderLock::take(&cell.dir, CELL_LOCK, "the cell")?;
         let start = Instant::now();
         let attempted = !cell.dir.join("cell.json").exists()
             && !crate::method::train::Trainer::checkpoints(&cell.dir.join("checkpoints")).is_empty();
@@ -520,13 +458,15 @@ mod tests {
         assert!(cell.finished().is_some() && !cell.stale());
         assert!(seeded.cells[0].finished().is_none() && seeded.cells[0].stale(), "another seed's result is stale");
         // Locks.
-        let lock = CellLock::take(&cell.dir).unwrap();
-        let err = CellLock::take(&cell.dir).err().expect("a second holder is refused").to_string();
+        let lock = FolderLock::take(&cell.dir, CELL_LOCK, "the cell").unwrap();
+        let err =
+            FolderLock::take(&cell.dir, CELL_LOCK, "the cell").err().expect("a second holder is refused").to_string();
         assert!(err.contains("cell.lock") && err.contains(&format!("pid {}", std::process::id())), "{err}");
         drop(lock);
         assert!(!cell.dir.join("cell.lock").exists(), "released");
-        std::fs::write(cell.dir.join("cell.lock"), format!("pid {} on {}", u32::MAX - 1, hostname())).unwrap();
-        drop(CellLock::take(&cell.dir).expect("a dead process's lock is taken over"));
+        std::fs::write(cell.dir.join("cell.lock"), format!("pid {} on {}", u32::MAX - 1, crate::run::lock::hostname()))
+            .unwrap();
+        drop(FolderLock::take(&cell.dir, CELL_LOCK, "the cell").expect("a dead process's lock is taken over"));
         // A FIFO as cell.json or as the lock: no hang, the cell is unfinished, the lock refused.
         for name in ["cell.json", "cell.lock"] {
             let p = cell.dir.join(name);
@@ -534,7 +474,7 @@ mod tests {
             assert!(std::process::Command::new("mkfifo").arg(&p).status().is_ok_and(|s| s.success()));
         }
         assert!(cell.finished().is_none(), "a FIFO is not a result");
-        assert!(CellLock::take(&cell.dir).is_err(), "a FIFO lock is nobody's stale lock");
+        assert!(FolderLock::take(&cell.dir, CELL_LOCK, "the cell").is_err(), "a FIFO lock is nobody's stale lock");
         std::fs::remove_dir_all(&dir).ok();
     }
 
