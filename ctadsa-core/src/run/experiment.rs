@@ -460,7 +460,7 @@ mod tests {
         // Locks.
         let lock = FolderLock::take(&cell.dir, CELL_LOCK, "the cell").unwrap();
         let err =
-            FolderLock::take(&cell.dir, CELL_LOCK, "the cell").err().expect("a second holder is refused").to_string();
+            FolderLock::take(&cell.dir, CELL_LOCK, "the cell").expect_err("a second holder is refused").to_string();
         assert!(err.contains("cell.lock") && err.contains(&format!("pid {}", std::process::id())), "{err}");
         drop(lock);
         assert!(!cell.dir.join("cell.lock").exists(), "released");
