@@ -12,9 +12,20 @@ use ctadsa_render::ConeBeamView;
 use crate::data::mesh::TriMesh;
 use crate::error::{CoreError, Result};
 
-/// Refuses a prior with a vertex as far from the isocentre as an X-ray source (no anatomy the
-/// views image lies there), or with no vertex that projects onto every view's detector.
+/// Refuses a prior whose triangles have no area (nothing to place Gaussians on), with a vertex
+/// as far from the isocentre as an X-ray source (no anatomy the views image lies there), or with
+/// no vertex that projects onto every view's detector.
 pub fn check_prior_in_views(mesh: &TriMesh, views: &[ConeBeamView], path: &Path) -> Result<()> {
+    let area = mesh.area_mm2();
+    if !(area > 0.0 && area.is_finite()) {
+        return Err(CoreError::format(
+            path,
+            format!(
+                "the prior's {} triangles have a total area of {area} mm²: every one is degenerate",
+                mesh.faces.len()
+            ),
+        ));
+    }
     let Some(nearest_source_mm) = views.iter().map(|v| v.source_mm().length()).reduce(f64::min) else {
         return Ok(());
     };
@@ -87,6 +98,14 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(err.contains("p.obj") && err.contains("projects onto every view"), "{err}");
+    }
+
+    #[test]
+    fn a_prior_without_area_is_refused() {
+        let mut mesh = triangle_at(DVec3::ZERO);
+        mesh.vertices[2] = DVec3::new(2.0, 0.0, 0.0); // collinear
+        let err = check_prior_in_views(&mesh, &views(), Path::new("p.obj")).unwrap_err().to_string();
+        assert!(err.contains("p.obj") && err.contains("degenerate"), "{err}");
     }
 
     #[test]
