@@ -53,7 +53,7 @@ pub fn run(args: ExperimentArgs) -> Result<()> {
             let state = if cell.finished().is_some() {
                 "done"
             } else if cell.stale() {
-                "stale (finished with another configuration: runs again)"
+                "stale (its cell.json is of another configuration or unreadable: runs again)"
             } else {
                 "todo"
             };

@@ -97,7 +97,7 @@ impl Cell {
         (result.config_hash.as_deref() == Some(self.config_hash.as_str())).then_some(result)
     }
 
-    /// Whether a `cell.json` is there but of another configuration (rerun when run).
+    /// Whether a `cell.json` is there but of another configuration or unreadable (rerun when run).
     pub fn stale(&self) -> bool {
         self.dir.join("cell.json").exists() && self.finished().is_none()
     }
