@@ -228,6 +228,9 @@ pub fn prior(args: PriorArgs) -> Result<()> {
         label_args.visible = "all".into();
     }
     let (mesh, _) = label_prior(&args.labels, &label_args, &views)?;
+    // With --case, a prior the case's views do not see (a missing shift) is refused, as the
+    // case would refuse it.
+    check_prior_in_views(&mesh, &views, &args.labels)?;
     write_mesh(&args.out, &mesh)?;
     println!("prior mesh written to {} ({} triangles)", args.out.display(), mesh.faces.len());
     Ok(())

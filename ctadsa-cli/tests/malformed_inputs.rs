@@ -432,6 +432,18 @@ fn malformed_nifti_volumes_are_refused_naming_the_field() {
         let expect: &[&str] = if *name == "truncated" { &[&file] } else { &[&file, field] };
         refused(&dir, &["prior", "--labels", &file, "--out", "out/prior.obj"], expect);
     }
+    // A valid volume (a 4 mm cube of label 1) shifted beside a case's field: refused with --case.
+    let n = 8usize;
+    let cube: Vec<u8> = (0..n * n * n)
+        .map(|i| {
+            let (x, y, z) = (i % n, i / n % n, i / (n * n));
+            u8::from([x, y, z].iter().all(|c| (2..6).contains(c)))
+        })
+        .collect();
+    std::fs::write(dir.join("cube.nii"), nifti([8; 3], 2, 8, [1.0; 3], None, &cube)).unwrap();
+    let case = valid_case().to_str().unwrap().to_string();
+    let args = ["prior", "--labels", "cube.nii", "--case", &case, "--visible", "all", "--out", "out/prior.obj"];
+    refused(&dir, &[&args[..], &["--prior-shift-mm", "300", "300", "0"]].concat(), &["cube.nii", "world coordinates"]);
 }
 
 /// Replaces the value of an explicit-VR little-endian element `(group, element)` of 2-byte
