@@ -78,8 +78,8 @@ pub fn holds_run(out: &Path) -> bool {
 /// The lock file of a run folder in use ([`FolderLock`]).
 pub const RUN_LOCK: &str = "run.lock";
 
-/// The files and folders (besides `mesh*.{obj,ply,stl}`, the checkpoints and the member's
-/// folder) that a run writes into its folder; `--overwrite` removes them.
+/// The files and folders that a run writes into its folder, besides `mesh*.{obj,ply,stl}` and
+/// the members' folders ([`run_outputs_in`] lists them all).
 const RUN_OUTPUTS: [&str; 17] = [
     "summary.json",
     "report.html",
@@ -100,7 +100,8 @@ const RUN_OUTPUTS: [&str; 17] = [
     "checkpoints",
 ];
 
-/// The run outputs (files or folders a run writes) that the folder `out` holds, by name.
+/// The run outputs (files or folders a run writes) that the folder `out` holds, by name: what
+/// `--overwrite` removes, and what a fresh run refuses to write over.
 fn run_outputs_in(out: &Path) -> Vec<String> {
     let meshes = ["obj", "ply", "stl"]
         .into_iter()
@@ -149,20 +150,8 @@ pub fn start_trainer(
         Start::Fresh => Trainer::new(case, cfg.clone(), device),
         Start::Overwrite => {
             // Everything an earlier run wrote here, and nothing else the folder may hold.
-            for name in RUN_OUTPUTS {
+            for name in run_outputs_in(out) {
                 remove(&out.join(name))?;
-            }
-            for format in ["obj", "ply", "stl"] {
-                for stem in ["mesh", "mesh-raw", "mesh-extracted"] {
-                    remove(&out.join(format!("{stem}.{format}")))?;
-                }
-            }
-            remove(&ck_dir)?;
-            remove(&out.join(MEMBER_DIR))?;
-            for entry in std::fs::read_dir(out).map_err(|e| CoreError::io(out, e))?.flatten() {
-                if entry.file_name().to_string_lossy().starts_with(SEED_MEMBER_PREFIX) {
-                    remove(&entry.path())?;
-                }
             }
             Trainer::new(case, cfg.clone(), device)
         }
