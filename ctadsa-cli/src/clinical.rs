@@ -194,10 +194,8 @@ pub fn import_dsa(args: ImportDsaArgs) -> Result<()> {
         args.voxel_mm,
         vec![],
     )?;
-    // Read it back: the same checks `complete` will apply.
-    Case::load(&args.out)
-        .and_then(|case| case.prior_mesh())
-        .with_context(|| format!("the written case {} does not load", args.out.display()))?;
+    // Read it back: the same checks `complete` will apply (the prior's was made above).
+    Case::load(&args.out).with_context(|| format!("the written case {} does not load", args.out.display()))?;
     println!("case written to {}", args.out.display());
     Ok(())
 }

@@ -12,7 +12,7 @@ use burn::tensor::Device;
 use serde::Deserialize;
 
 use crate::config::Config;
-use crate::data::case::{CASE_FILE, Case, CaseFile, PriorEntry};
+use crate::data::case::{CASE_FILE, Case, CaseFile, PriorEntry, text_hash};
 use crate::error::{CoreError, Result, check_file_name, read_file, to_json, write_file};
 use crate::eval::metrics::SurfaceScores;
 use crate::output::export::RunSummary;
@@ -101,12 +101,6 @@ impl Cell {
     pub fn stale(&self) -> bool {
         self.dir.join("cell.json").exists() && self.finished().is_none()
     }
-}
-
-/// FNV-1a (64 bits) of `text`, as 16 hex digits: stable across builds and platforms.
-fn text_hash(text: &str) -> String {
-    let hash = text.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ b as u64).wrapping_mul(0x0100_0000_01b3));
-    format!("{hash:016x}")
 }
 
 /// The lock file of a cell being run ([`FolderLock`]).

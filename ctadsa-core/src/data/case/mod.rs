@@ -32,6 +32,13 @@ pub const MAX_VIEWS: usize = 64;
 /// 2048² pixels), checked before any image is read.
 pub const MAX_TOTAL_PIXELS: u64 = 1 << 29;
 
+/// FNV-1a (64 bits) of `text`, as 16 hex digits: stable across builds and platforms (what
+/// case fingerprints and experiment cells' configuration hashes are made of).
+pub fn text_hash(text: &str) -> String {
+    let hash = text.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ b as u64).wrapping_mul(0x0100_0000_01b3));
+    format!("{hash:016x}")
+}
+
 /// Where the data came from.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -354,9 +361,7 @@ impl Case {
     /// the case it was made on.
     pub fn fingerprint(&self) -> String {
         let text = serde_json::to_string(&self.file).unwrap_or_default();
-        // FNV-1a, 64 bits: stable across builds and platforms.
-        let hash = text.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ b as u64).wrapping_mul(0x0100_0000_01b3));
-        format!("{} {hash:016x}", self.file.name)
+        format!("{} {}", self.file.name, text_hash(&text))
     }
 
     /// Path of a file named in the case, relative to the case folder.
