@@ -8,6 +8,8 @@
 //! `s · cell` reaches the radius (the query is not anchored) — or after [`MAX_SHELL`] shells
 //! (far from a dense prior surface only; then the k nearest found so far are used).
 
+use rayon::prelude::*;
+
 /// Shells searched at most.
 pub const MAX_SHELL: u32 = 16;
 
@@ -135,37 +137,40 @@ impl GridView<'_> {
     }
 
     /// For each query `[m · 3]`: the mean of its `k` nearest points and 1 where its nearest
-    /// point is within `radius_mm`, else the query itself and 0.
+    /// point is within `radius_mm`, else the query itself and 0. Queries run in parallel
+    /// (rayon); each one's answer does not depend on the others or on the thread count.
     pub fn targets(&self, queries: &[f32], k: usize, radius_mm: f32) -> (Vec<f32>, Vec<f32>) {
         let k = k.clamp(1, MAX_K);
         let r2 = radius_mm * radius_mm;
-        let mut targets = Vec::with_capacity(queries.len());
-        let mut keep = Vec::with_capacity(queries.len() / 3);
-        for q in queries.chunks_exact(3) {
-            let q = [q[0], q[1], q[2]];
-            let best = self.nearest(q, k, radius_mm);
-            let kept = best.first().is_some_and(|&(d2, _)| d2 <= r2);
-            if kept {
+        let (targets, keep): (Vec<[f32; 3]>, Vec<f32>) = queries
+            .par_chunks_exact(3)
+            .with_min_len(64)
+            .map(|q| {
+                let q = [q[0], q[1], q[2]];
+                let best = self.nearest(q, k, radius_mm);
+                let best = best.points();
+                if best.first().is_none_or(|&(d2, _)| d2 > r2) {
+                    return (q, 0.0);
+                }
                 let mut m = [0.0f32; 3];
-                for &(_, p) in &best {
+                for &(_, p) in best {
+                    let p = p as usize;
                     for (sum, v) in m.iter_mut().zip(&self.points[3 * p..3 * p + 3]) {
                         *sum += v;
                     }
                 }
-                targets.extend(m.map(|v| v / best.len() as f32));
-            } else {
-                targets.extend(q);
-            }
-            keep.push(if kept { 1.0 } else { 0.0 });
-        }
-        (targets, keep)
+                (m.map(|v| v / best.len() as f32), 1.0)
+            })
+            .unzip();
+        (targets.into_flattened(), keep)
     }
 
-    /// The (squared distance, point) of the `k` nearest points to `q` the shell search finds,
-    /// nearest first.
-    fn nearest(&self, q: [f32; 3], k: usize, radius_mm: f32) -> Vec<(f32, usize)> {
+    /// The `k` nearest points to `q` the shell search finds. A cell whose box lies farther than
+    /// the k-th nearest found so far is skipped: none of its points could enter the list, then
+    /// or later (the k-th distance only shrinks), so the answer is the one of visiting it.
+    fn nearest(&self, q: [f32; 3], k: usize, radius_mm: f32) -> Nearest {
         let c = [0, 1, 2].map(|a| ((q[a] - self.origin[a]) / self.cell_mm).floor() as i64);
-        let mut best: Vec<(f32, usize)> = Vec::with_capacity(k + 1);
+        let mut best = Nearest::new(k);
         for s in 0..=MAX_SHELL as i64 {
             for dz in -s..=s {
                 for dy in -s..=s {
@@ -177,28 +182,79 @@ impl GridView<'_> {
                         if cell.iter().any(|&v| !(0..=u32::MAX as i64).contains(&v)) {
                             continue;
                         }
+                        if best.is_full() && self.box_distance2(cell, q) > best.kth() {
+                            continue;
+                        }
                         let Some((start, count)) = self.lookup(cell.map(|v| v as u32)) else { continue };
                         for p in start..start + count {
                             let d = [0, 1, 2].map(|a| self.points[3 * p + a] - q[a]);
-                            let d2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
-                            if best.len() < k || d2 < best[best.len() - 1].0 {
-                                let at = best.partition_point(|&(b, _)| b <= d2);
-                                best.insert(at, (d2, p));
-                                best.truncate(k);
-                            }
+                            best.offer(d[0] * d[0] + d[1] * d[1] + d[2] * d[2], p as u32);
                         }
                     }
                 }
             }
             let bound = s as f32 * self.cell_mm;
-            if best.len() >= k && best[k - 1].0 <= bound * bound {
+            if best.is_full() && best.kth() <= bound * bound {
                 break;
             }
-            if bound >= radius_mm && best.first().is_none_or(|&(d2, _)| d2 > radius_mm * radius_mm) {
+            if bound >= radius_mm && best.points().first().is_none_or(|&(d2, _)| d2 > radius_mm * radius_mm) {
                 break;
             }
         }
         best
+    }
+
+    /// A lower bound (mm²) of the squared distance from `q` to any point binned into `cell`:
+    /// the distance to the cell's box, less a slack of 10⁻⁴ cell per axis for the rounding of
+    /// the binning (a point at a cell's face may be binned into its neighbour).
+    fn box_distance2(&self, cell: [i64; 3], q: [f32; 3]) -> f32 {
+        let slack = 1e-4 * self.cell_mm;
+        let mut d2 = 0.0;
+        for a in 0..3 {
+            let lo = self.origin[a] + cell[a] as f32 * self.cell_mm;
+            let hi = lo + self.cell_mm;
+            let d = ((lo - q[a]).max(q[a] - hi) - slack).max(0.0);
+            d2 += d * d;
+        }
+        d2
+    }
+}
+
+/// The `k` nearest points offered so far, nearest first (ties: the first offered first).
+struct Nearest {
+    k: usize,
+    len: usize,
+    found: [(f32, u32); MAX_K],
+}
+
+impl Nearest {
+    fn new(k: usize) -> Self {
+        Self { k: k.clamp(1, MAX_K), len: 0, found: [(0.0, 0); MAX_K] }
+    }
+
+    fn is_full(&self) -> bool {
+        self.len == self.k
+    }
+
+    /// The k-th nearest squared distance (call when full).
+    fn kth(&self) -> f32 {
+        self.found[self.k - 1].0
+    }
+
+    fn points(&self) -> &[(f32, u32)] {
+        &self.found[..self.len]
+    }
+
+    /// Keeps point `p` at squared distance `d2` if it is among the `k` nearest so far.
+    fn offer(&mut self, d2: f32, p: u32) {
+        if self.is_full() && d2 >= self.kth() {
+            return;
+        }
+        let at = self.found[..self.len].partition_point(|&(b, _)| b <= d2);
+        let end = if self.is_full() { self.k - 1 } else { self.len };
+        self.found.copy_within(at..end, at + 1);
+        self.found[at] = (d2, p);
+        self.len = (self.len + 1).min(self.k);
     }
 }
 
@@ -294,6 +350,17 @@ mod tests {
         let (targets, keep) = grid.view().targets(&[4.2, 0.3, 0.0, 4.5, 3.0, 0.0], 2, 0.5);
         assert_eq!(keep, vec![1.0, 0.0], "the second centre is 3 mm away");
         assert_eq!(&targets[..3], &[4.5, 0.0, 0.0], "the mean of points 4 and 5");
+    }
+
+    /// The list keeps the k smallest offers in order, the first of equal offers first.
+    #[test]
+    fn nearest_keeps_the_k_smallest_in_order() {
+        let mut best = Nearest::new(3);
+        for (d2, p) in [(5.0, 0), (1.0, 1), (3.0, 2), (1.0, 3), (4.0, 4), (0.5, 5), (3.0, 6)] {
+            best.offer(d2, p);
+        }
+        assert_eq!(best.points(), &[(0.5, 5), (1.0, 1), (1.0, 3)]);
+        assert!(best.is_full() && best.kth() == 1.0);
     }
 
     #[test]
