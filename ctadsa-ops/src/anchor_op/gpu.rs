@@ -1,6 +1,6 @@
 //! The anchor search on CubeCL: one unit per query walks the shells of cells around it
-//! (`grid.rs` says how; this kernel follows it step for step, with the k nearest kept sorted in
-//! local arrays of [`MAX_K`] entries).
+//! (`grid.rs` says how; this kernel follows it step for step, skipping the same cells, with the
+//! k nearest kept sorted in local arrays of [`MAX_K`] entries).
 
 use burn::backend::ops::IntTensorOps;
 use burn::backend::{IntDType, TensorMetadata};
@@ -100,7 +100,20 @@ fn anchor_kernel(
                     let x = cx + ox;
                     let y = cy + oy;
                     let z = cz + oz;
-                    if shell == s && x >= 0 && y >= 0 && z >= 0 {
+                    // A cell whose box lies beyond the k-th nearest so far is skipped (as on
+                    // the CPU, with the same slack for the binning's rounding).
+                    let mut near = true;
+                    if found >= k {
+                        let slack = 1.0e-4f32 * cell;
+                        let lx = origin_x + f32::cast_from(x) * cell;
+                        let ly = origin_y + f32::cast_from(y) * cell;
+                        let lz = origin_z + f32::cast_from(z) * cell;
+                        let bx = f32::max(f32::max(lx - qx, qx - (lx + cell)) - slack, 0.0f32);
+                        let by = f32::max(f32::max(ly - qy, qy - (ly + cell)) - slack, 0.0f32);
+                        let bz = f32::max(f32::max(lz - qz, qz - (lz + cell)) - slack, 0.0f32);
+                        near = bx * bx + by * by + bz * bz <= best_d[(k - 1u32) as usize];
+                    }
+                    if shell == s && x >= 0 && y >= 0 && z >= 0 && near {
                         let (start, count) =
                             lookup(table, u32::cast_from(x), u32::cast_from(y), u32::cast_from(z), mask);
                         for p in start..start + count {
