@@ -358,6 +358,8 @@ fn checkpoint_with_the_padded_table_layout_resumes_exactly() {
     .unwrap();
     assert_eq!(padded_moments, 2, "Adam's two moments of the table");
     optim.save(ck.join("optim-field.bpk")).unwrap();
+    // The versions of that layout recorded no file digests.
+    forget_file_digests(&ck);
     let mut resumed = Trainer::resume(case, cfg, device, &ck).unwrap();
     assert_eq!(host_vec(resumed.model().field.grid.tables.val()), host_vec(straight.model().field.grid.tables.val()));
     while straight.iteration() < 12 {
@@ -370,6 +372,46 @@ fn checkpoint_with_the_padded_table_layout_resumes_exactly() {
         assert_eq!(x.loss, y.loss, "iteration {}: straight vs resumed from the padded layout", x.iteration);
     }
     assert_eq!(straight.host_gaussians(), resumed.host_gaussians());
+}
+
+/// `state.json` of checkpoint `ck` without its file digests, as versions before them wrote it.
+fn forget_file_digests(ck: &std::path::Path) {
+    let path = ck.join("state.json");
+    let mut state: serde_json::Value = serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+    assert!(state.as_object_mut().unwrap().remove("files").is_some(), "the checkpoint records its files");
+    std::fs::write(&path, serde_json::to_vec(&state).unwrap()).unwrap();
+}
+
+/// A checkpoint whose files changed after it was written (one byte of the model flipped, the
+/// densification statistics cut short) is refused, naming the file, instead of resuming from
+/// damaged parameters; the untouched checkpoint resumes.
+#[test]
+fn damaged_checkpoints_are_refused_naming_the_file() {
+    let (case, cfg, device) = (tiny_case(), tiny_config(4), Device::ndarray().autodiff());
+    let dir = scratch("tiny-damaged");
+    let mut t = Trainer::new(case, cfg.clone(), device.clone()).unwrap();
+    t.step().unwrap();
+    let ck = t.save_checkpoint(&dir).unwrap();
+    let resume = |ck: &std::path::Path| Trainer::resume(case, cfg.clone(), device.clone(), ck).map(|_| ());
+    resume(&ck).unwrap();
+
+    let flipped = dir.join("flipped");
+    copy_dir(&ck, &flipped);
+    let mut model = std::fs::read(flipped.join("model.bpk")).unwrap();
+    let at = model.len() - 9;
+    model[at] ^= 0x40;
+    std::fs::write(flipped.join("model.bpk"), model).unwrap();
+    let e = resume(&flipped).expect_err("a flipped byte is refused").to_string();
+    assert!(e.contains("model.bpk") && e.contains("damaged"), "{e}");
+
+    // Without digests (older versions) the statistics' length is still checked.
+    let short = dir.join("short-stats");
+    copy_dir(&ck, &short);
+    forget_file_digests(&short);
+    let stats = std::fs::read(short.join("stats.bin")).unwrap();
+    std::fs::write(short.join("stats.bin"), &stats[..stats.len() - 8]).unwrap();
+    let e = resume(&short).expect_err("short statistics are refused").to_string();
+    assert!(e.contains("stats.bin") && e.contains("bytes"), "{e}");
 }
 
 /// The fused Adam (default) against burn's Adam (`optim.adam = "burn"`, the reference) over a

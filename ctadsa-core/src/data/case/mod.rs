@@ -35,8 +35,16 @@ pub const MAX_TOTAL_PIXELS: u64 = 1 << 29;
 /// FNV-1a (64 bits) of `text`, as 16 hex digits: stable across builds and platforms (what
 /// case fingerprints and experiment cells' configuration hashes are made of).
 pub fn text_hash(text: &str) -> String {
-    let hash = text.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ b as u64).wrapping_mul(0x0100_0000_01b3));
-    format!("{hash:016x}")
+    format!("{:016x}", fnv1a(FNV1A_START, text.as_bytes()))
+}
+
+/// The FNV-1a state before the first byte.
+pub const FNV1A_START: u64 = 0xcbf2_9ce4_8422_2325;
+
+/// FNV-1a (64 bits) continued from `state` over `bytes` (start from [`FNV1A_START`]); any one
+/// changed byte changes the result.
+pub fn fnv1a(state: u64, bytes: &[u8]) -> u64 {
+    bytes.iter().fold(state, |h, &b| (h ^ b as u64).wrapping_mul(0x0100_0000_01b3))
 }
 
 /// Where the data came from.

@@ -1,5 +1,6 @@
 //! Checkpoints: save (atomically), list, and resume with the same case and settings.
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use burn::module::{Module, Param};
@@ -8,7 +9,7 @@ use burn::tensor::{Device, Tensor, TensorData};
 use serde::{Deserialize, Serialize};
 
 use crate::config::Config;
-use crate::data::case::Case;
+use crate::data::case::{Case, FNV1A_START, fnv1a};
 use crate::data::volume::BoxMm;
 use crate::error::{CoreError, Result, read_file, to_json, write_file};
 use crate::method::densify::DensifyStats;
@@ -37,6 +38,65 @@ struct CheckpointState {
     /// (absent in checkpoints of older versions).
     #[serde(default)]
     case: Option<String>,
+    /// Length and FNV-1a of every other file of the checkpoint, checked before a resume reads
+    /// them (absent in checkpoints of older versions).
+    #[serde(default)]
+    files: Option<BTreeMap<String, FileDigest>>,
+}
+
+/// A checkpoint file's length (bytes) and FNV-1a (16 hex digits).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+struct FileDigest {
+    bytes: u64,
+    fnv1a: String,
+}
+
+impl FileDigest {
+    /// The digest of the file at `path`, read in blocks.
+    fn of(path: &Path) -> Result<Self> {
+        use std::io::Read as _;
+        let mut file = std::fs::File::open(path).map_err(|e| CoreError::io(path, e))?;
+        let (mut state, mut bytes, mut block) = (FNV1A_START, 0u64, vec![0u8; 1 << 20]);
+        loop {
+            let n = file.read(&mut block).map_err(|e| CoreError::io(path, e))?;
+            if n == 0 {
+                break;
+            }
+            state = fnv1a(state, &block[..n]);
+            bytes += n as u64;
+        }
+        Ok(Self { bytes, fnv1a: format!("{state:016x}") })
+    }
+}
+
+/// The digests of the files `names` in checkpoint folder `dir`.
+fn digests(dir: &Path, names: &[&str]) -> Result<BTreeMap<String, FileDigest>> {
+    names.iter().map(|name| Ok((name.to_string(), FileDigest::of(&dir.join(name))?))).collect()
+}
+
+/// Refuses a checkpoint whose files are not what `state.json` says was written (damaged,
+/// truncated or replaced), naming the first such file.
+fn verify_files(dir: &Path, recorded: &BTreeMap<String, FileDigest>) -> Result<()> {
+    for (name, expected) in recorded {
+        let path = dir.join(name);
+        if name.contains(['/', '\\']) || name.starts_with('.') {
+            return Err(CoreError::format(
+                &dir.join("state.json"),
+                format!("lists a file outside the checkpoint: `{name}`"),
+            ));
+        }
+        let found = FileDigest::of(&path)?;
+        if found != *expected {
+            return Err(CoreError::format(
+                &path,
+                format!(
+                    "damaged: {} bytes with FNV-1a {}, where state.json records {} bytes with {}",
+                    found.bytes, found.fnv1a, expected.bytes, expected.fnv1a
+                ),
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// The configuration less what may change on resume (`[output]`, `run.iterations`,
@@ -149,6 +209,10 @@ impl Trainer {
         }
         let stats: Vec<u8> = self.stats.sum.iter().chain(&self.stats.count).flat_map(|v| v.to_le_bytes()).collect();
         write_file(&ck.join("stats.bin"), &stats)?;
+        let mut names = vec!["model.bpk", "optim.bpk", "optim-field.bpk", "stats.bin"];
+        if self.poses.is_some() {
+            names.extend(["poses.bpk", "poses-optim.bpk"]);
+        }
         let state = CheckpointState {
             iteration: self.iteration,
             gaussians: self.model().len(),
@@ -158,6 +222,7 @@ impl Trainer {
             working_box: Some(self.working_box),
             training_settings: Some(training_settings(&self.cfg)),
             case: Some(self.case_fingerprint.clone()),
+            files: Some(digests(&ck, &names)?),
         };
         let state_path = ck.join("state.json");
         write_file(&state_path, to_json(&state, &state_path)?.as_bytes())?;
@@ -211,6 +276,9 @@ impl Trainer {
                      hash of case.json); resume with the run's case, or start a new run"
                 ),
             ));
+        }
+        if let Some(files) = &state.files {
+            verify_files(checkpoint, files)?;
         }
         let (views, images) = prepare_views(case, &cfg)?;
         let prior = case.prior_mesh()?;
@@ -284,9 +352,13 @@ impl Trainer {
         }
         let stats = read_file(&checkpoint.join("stats.bin"))?;
         let vals: Vec<f32> = stats.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
-        if vals.len() == 2 * n {
-            t.stats = DensifyStats { sum: vals[..n].to_vec(), count: vals[n..].to_vec() };
+        if stats.len() != 8 * n {
+            return Err(CoreError::format(
+                &checkpoint.join("stats.bin"),
+                format!("{} bytes, where {n} Gaussians' densification statistics take {}", stats.len(), 8 * n),
+            ));
         }
+        t.stats = DensifyStats { sum: vals[..n].to_vec(), count: vals[n..].to_vec() };
         t.case_fingerprint = fingerprint;
         t.iteration = state.iteration;
         t.history = state.history;
