@@ -14,14 +14,17 @@ pub fn blur(x: &[f32], v: usize, h: usize, w: usize, taps: &[f32; 2 * RADIUS + 1
     }
     let mut along_w = vec![0.0f32; x.len()];
     along_w.par_chunks_mut(w).zip(x.par_chunks(w)).for_each(|(out, row)| {
-        for (c, o) in out.iter_mut().enumerate() {
-            let mut acc = 0.0f32;
-            for (k, t) in taps.iter().enumerate() {
-                if let Some(cc) = (c + k).checked_sub(RADIUS).filter(|&cc| cc < w) {
-                    acc += t * row[cc];
+        // Tap by tap over the whole row (vectorised), each output still summing its taps in
+        // tap order: output `c` takes `row[c + k − RADIUS]` where that lies in the row.
+        for (k, t) in taps.iter().enumerate() {
+            let lo = RADIUS.saturating_sub(k);
+            let hi = (w + RADIUS).saturating_sub(k).min(w);
+            if lo < hi {
+                let from = lo + k - RADIUS;
+                for (o, s) in out[lo..hi].iter_mut().zip(&row[from..from + (hi - lo)]) {
+                    *o += t * s;
                 }
             }
-            *o = acc;
         }
     });
     let mut out = vec![0.0f32; x.len()];

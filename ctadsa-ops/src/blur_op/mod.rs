@@ -113,6 +113,52 @@ mod tests {
         assert_eq!(gpu::HALF_TAPS.as_slice(), &taps()[5..]);
     }
 
+    /// The kernel sums each output's taps in tap order, as the plain per-pixel loop does: the
+    /// same bits, with rows narrower than the window, as wide and wider.
+    #[test]
+    fn blur_kernel_is_the_per_pixel_sum_to_the_bit() {
+        let t = taps();
+        let plain = |x: &[f32], h: usize, w: usize| -> Vec<f32> {
+            let at = |r: i64, c: i64| {
+                if (0..h as i64).contains(&r) && (0..w as i64).contains(&c) {
+                    Some(x[r as usize * w + c as usize])
+                } else {
+                    None
+                }
+            };
+            let mut rows = vec![0.0f32; h * w];
+            for r in 0..h {
+                for c in 0..w {
+                    let mut acc = 0.0f32;
+                    for (k, tk) in t.iter().enumerate() {
+                        if let Some(v) = at(r as i64, c as i64 + k as i64 - 5) {
+                            acc += tk * v;
+                        }
+                    }
+                    rows[r * w + c] = acc;
+                }
+            }
+            let mut out = vec![0.0f32; h * w];
+            for r in 0..h {
+                for c in 0..w {
+                    let mut acc = 0.0f32;
+                    for (k, tk) in t.iter().enumerate() {
+                        let rr = r as i64 + k as i64 - 5;
+                        if (0..h as i64).contains(&rr) {
+                            acc += tk * rows[rr as usize * w + c];
+                        }
+                    }
+                    out[r * w + c] = acc;
+                }
+            }
+            out
+        };
+        for (h, w) in [(3, 2), (6, 11), (9, 12), (13, 37)] {
+            let x: Vec<f32> = (0..h * w).map(|i| ((i * 7919 % 1000) as f32 / 250.0 - 2.0).sin()).collect();
+            assert_eq!(cpu::blur(&x, 1, h, w, &t), plain(&x, h, w), "{h} × {w}");
+        }
+    }
+
     #[test]
     fn blur_of_an_impulse_is_the_window() {
         let (h, w) = (15, 17);
