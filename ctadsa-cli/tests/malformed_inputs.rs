@@ -141,6 +141,10 @@ fn out_of_range_config_values_are_refused_naming_the_key() {
     let dir = sandbox("config");
     let case = valid_case().to_str().unwrap().to_string();
     let config = quick_config();
+    // 20,000 views (an argument stays under Linux's 128 KiB).
+    let long_views = format!("run.views=[{}]", (0..20_000).map(|i| i.to_string()).collect::<Vec<_>>().join(","));
+    let long_reseeds =
+        format!("densify.reseed_at=[{}]", (0..2_000).map(|i| i.to_string()).collect::<Vec<_>>().join(","));
     for (set, key) in [
         ("init.n1=2000000000", "init.n1"),
         ("field.hidden=100000000", "field.hidden"),
@@ -168,6 +172,9 @@ fn out_of_range_config_values_are_refused_naming_the_key() {
         ("output.voxel_mm=0.011", "output.voxel_mm"),
         // One view twice would pass for two directions.
         ("run.views=[0, 0]", "run.views"),
+        // A list long enough that checking it for repeats took minutes.
+        (long_views.as_str(), "run.views"),
+        (long_reseeds.as_str(), "densify.reseed_at"),
         ("densify.reseed_mask_threshold=nan", "densify.reseed_mask_threshold"),
         ("init.seed_spacing_mm=-1", "init.seed_spacing_mm"),
         ("init.track_level=0", "init.track_level"),
@@ -531,5 +538,15 @@ fn malformed_experiment_names_do_not_escape() {
         &dir,
         &["experiment", "--matrix", "views.toml", "--cases", &case, "--out", "out/m", "--list"],
         &["views.toml", "[0, 5]", "it has 3"],
+    );
+    // A matrix of a million cells is refused before any cell's configuration is read.
+    let subsets = (0..1000).map(|i| format!("[{i}]")).collect::<Vec<_>>().join(", ");
+    let methods =
+        (0..1000).map(|i| format!("[[methods]]\nname = \"m{i}\"\nconfig = \"{config}\"\n")).collect::<String>();
+    std::fs::write(dir.join("huge.toml"), format!("views = [{subsets}]\npriors = []\nset = []\n{methods}")).unwrap();
+    refused(
+        &dir,
+        &["experiment", "--matrix", "huge.toml", "--cases", &case, "--out", "out/m", "--list"],
+        &["huge.toml", "1000000 cells", "at most 100000"],
     );
 }

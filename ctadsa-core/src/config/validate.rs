@@ -1,6 +1,7 @@
 //! Range checks of a configuration; every error names the key.
 
 use super::*;
+use crate::data::case::MAX_VIEWS;
 use crate::error::{CoreError, Result};
 
 fn check(ok: bool, key: &str, what: impl std::fmt::Display) -> Result<()> {
@@ -13,6 +14,11 @@ impl Config {
         check(self.run.iterations >= 1, "run.iterations", "must be ≥ 1")?;
         check(self.run.image_binning >= 1, "run.image_binning", "must be ≥ 1")?;
         let views = &self.run.views;
+        check(
+            views.len() <= MAX_VIEWS,
+            "run.views",
+            format!("lists {} views; a case has at most {MAX_VIEWS}", views.len()),
+        )?;
         check(
             (1..views.len()).all(|k| !views[..k].contains(&views[k])),
             "run.views",
@@ -60,6 +66,8 @@ impl Config {
             check(n <= MAX_GAUSSIANS, k, "must be at most 20,000,000")?;
         }
         check(self.run.iterations <= 10_000_000, "run.iterations", "must be at most 10,000,000")?;
+        // Looked up at every step.
+        check(self.densify.reseed_at.len() <= 1000, "densify.reseed_at", "must list at most 1,000 iterations")?;
         check(self.run.member_iterations <= 10_000_000, "run.member_iterations", "must be at most 10,000,000")?;
         let seeds = &self.run.member_seeds;
         check(seeds.len() <= MAX_MEMBER_SEEDS, "run.member_seeds", "must list at most 8 seeds")?;

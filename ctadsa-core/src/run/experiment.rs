@@ -12,7 +12,7 @@ use burn::tensor::Device;
 use serde::Deserialize;
 
 use crate::config::Config;
-use crate::data::case::{CASE_FILE, Case, CaseFile, PriorEntry, text_hash};
+use crate::data::case::{CASE_FILE, Case, CaseFile, MAX_VIEWS, PriorEntry, text_hash};
 use crate::error::{CoreError, Result, check_file_name, read_file, to_json, write_file};
 use crate::eval::metrics::SurfaceScores;
 use crate::output::export::RunSummary;
@@ -105,6 +105,10 @@ impl Cell {
 
 /// The lock file of a cell being run ([`FolderLock`]).
 const CELL_LOCK: &str = "cell.lock";
+
+/// The most cells a matrix may have (cases × priors × view subsets × methods): far beyond a
+/// study's, and each cell's configuration is checked when the matrix is read.
+pub const MAX_CELLS: usize = 100_000;
 
 /// A matrix over cases, with its cells in a fixed order (case, prior, views, method), so that a
 /// cell's index names the same run on every machine.
@@ -202,6 +206,18 @@ impl Experiment {
         let bad = |problem: String| CoreError::format(matrix_path, problem);
         if matrix.views.is_empty() || matrix.methods.is_empty() {
             return Err(bad("the matrix needs at least one view subset and one method".into()));
+        }
+        let cells = matrix.views.len() as u128
+            * matrix.methods.len() as u128
+            * matrix.priors.len().max(1) as u128
+            * cases.len().max(1) as u128;
+        if cells > MAX_CELLS as u128 {
+            return Err(bad(format!(
+                "{cells} cells (cases × priors × view subsets × methods); a matrix has at most {MAX_CELLS}"
+            )));
+        }
+        if let Some(v) = matrix.views.iter().find(|v| v.len() > MAX_VIEWS) {
+            return Err(bad(format!("a view subset of {} views; a case has at most {MAX_VIEWS}", v.len())));
         }
         for m in &matrix.methods {
             check_file_name(&m.name, "method name").map_err(bad)?;
