@@ -771,7 +771,9 @@ fn chromium() -> Option<PathBuf> {
 fn report_page_renders_its_images_in_headless_chromium() {
     let (_, _) = run(Device::ndarray(), 20, "tiny-report");
     let dir = scratch("tiny-report");
-    let page = ctadsa_core::output::report::write_report(&dir).expect("report");
+    let written = ctadsa_core::output::report::write_report(&dir).expect("report");
+    assert!(written.left_out.is_empty(), "a run's own files read back: {:?}", written.left_out);
+    let page = written.path;
     let html = std::fs::read_to_string(&page).unwrap();
     assert!(html.contains("data:image/png;base64,") && !html.contains("src=\"renders/"), "images are embedded");
     for section in [

@@ -12,7 +12,10 @@ pub struct ReportArgs {
 }
 
 pub fn run(args: ReportArgs) -> Result<()> {
-    let path = ctadsa_core::output::report::write_report(&args.run_dir)?;
-    println!("report written to {}", path.display());
+    let written = ctadsa_core::output::report::write_report(&args.run_dir)?;
+    for note in &written.left_out {
+        eprintln!("warning: left out of the report (unreadable): {note}");
+    }
+    println!("report written to {}", written.path.display());
     Ok(())
 }

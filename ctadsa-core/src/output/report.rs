@@ -71,35 +71,72 @@ fn metrics_rows(html: &mut String, label: &str, scores: &Value) {
     }
 }
 
-/// Writes `RUN_DIR/report.html` and returns its path. Needs `summary.json` (written by every
-/// finished run); every other piece is shown when present.
-pub fn write_report(run_dir: &Path) -> Result<PathBuf> {
+/// A written report: its path, and the files it found but could not read (each with the reason),
+/// whose parts the page leaves out and names at its top.
+#[derive(Debug, Clone)]
+pub struct WrittenReport {
+    pub path: PathBuf,
+    pub left_out: Vec<String>,
+}
+
+/// `read(path)` for a part of the report: `None` where the file is absent, and where it is
+/// present but unreadable also a note in `left_out` naming it.
+fn optional<T>(path: &Path, left_out: &mut Vec<String>, read: impl FnOnce(&Path) -> Result<T>) -> Option<T> {
+    if !path.exists() {
+        return None;
+    }
+    read(path)
+        .map_err(|e| {
+            // The error names its file, as the library's errors do; else the note names it.
+            let (message, name) = (e.to_string(), path.display().to_string());
+            left_out.push(if message.contains(&name) { message } else { format!("{name}: {message}") });
+        })
+        .ok()
+}
+
+/// Writes `RUN_DIR/report.html`. Needs `summary.json` (written by every finished run); every
+/// other piece is shown when present, and one present but unreadable is named on the page and
+/// in [`WrittenReport::left_out`].
+pub fn write_report(run_dir: &Path) -> Result<WrittenReport> {
     let summary_path = run_dir.join("summary.json");
     let summary: Value = serde_json::from_slice(&read_file(&summary_path)?)
         .map_err(|e| CoreError::format(&summary_path, format!("invalid run summary: {e}")))?;
+    let mut left_out = Vec::new();
     let case_dir = summary["case_dir"].as_str().map(PathBuf::from);
     let case: Option<CaseFile> = case_dir.as_ref().and_then(|d| {
-        let p = d.join(CASE_FILE);
-        let text = String::from_utf8(read_file(&p).ok()?).ok()?;
-        CaseFile::parse(&text, &p).ok()
+        optional(&d.join(CASE_FILE), &mut left_out, |p| {
+            let text = String::from_utf8(read_file(p)?).map_err(|_| CoreError::format(p, "not UTF-8 text"))?;
+            CaseFile::parse(&text, p)
+        })
     });
     let title = case.as_ref().map_or("ctadsa run".to_string(), |c| format!("ctadsa — {}", c.name));
+    let mut body = String::new();
+    inputs(&mut body, case.as_ref());
+    renders(&mut body, run_dir)?;
+    completed_tree(&mut body, run_dir)?;
+    interactive_view(&mut body, run_dir, case.as_ref(), case_dir.as_deref(), &mut left_out);
+    metrics(&mut body, &summary);
+    centreline(&mut body, run_dir, &summary)?;
+    poses(&mut body, run_dir, &summary)?;
+    if run_dir.join("loss.png").exists() {
+        body.push_str("<h2>Training loss</h2>");
+        body.push_str(&png_tag(&run_dir.join("loss.png"), "loss curve")?);
+    }
+    if let Some(cfg) = optional(&run_dir.join("config.toml"), &mut left_out, read_file) {
+        let _ = write!(body, "<h2>Configuration</h2><pre>{}</pre>", escape(&String::from_utf8_lossy(&cfg)));
+    }
     let mut html = String::new();
     header(&mut html, &title, run_dir, case_dir.as_deref(), &summary);
-    inputs(&mut html, case.as_ref());
-    renders(&mut html, run_dir)?;
-    completed_tree(&mut html, run_dir)?;
-    interactive_view(&mut html, run_dir, case.as_ref(), case_dir.as_deref());
-    metrics(&mut html, &summary);
-    centreline(&mut html, run_dir, &summary)?;
-    poses(&mut html, run_dir, &summary)?;
-    if run_dir.join("loss.png").exists() {
-        html.push_str("<h2>Training loss</h2>");
-        html.push_str(&png_tag(&run_dir.join("loss.png"), "loss curve")?);
+    if !left_out.is_empty() {
+        html.push_str(
+            "<div class=\"left-out\"><p><b>Left out of this page</b> (files present but unreadable):</p><ul>",
+        );
+        for note in &left_out {
+            let _ = write!(html, "<li><code>{}</code></li>", escape(note));
+        }
+        html.push_str("</ul></div>");
     }
-    if let Ok(cfg) = read_file(&run_dir.join("config.toml")) {
-        let _ = write!(html, "<h2>Configuration</h2><pre>{}</pre>", escape(&String::from_utf8_lossy(&cfg)));
-    }
+    html.push_str(&body);
     // Marks the page once every image has decoded (checked by the report test in a browser).
     html.push_str(
         "<script>window.addEventListener('load',()=>{const i=[...document.images];\
@@ -107,9 +144,9 @@ pub fn write_report(run_dir: &Path) -> Result<PathBuf> {
          document.body.dataset.imagesLoaded=i.filter(x=>x.complete&&x.naturalWidth>0).length;});</script>",
     );
     html.push_str("</body></html>\n");
-    let out = run_dir.join(REPORT_FILE);
-    write_file(&out, html.as_bytes())?;
-    Ok(out)
+    let path = run_dir.join(REPORT_FILE);
+    write_file(&path, html.as_bytes())?;
+    Ok(WrittenReport { path, left_out })
 }
 
 /// The page head, style and the run's one-line description.
@@ -223,14 +260,20 @@ fn completed_tree(html: &mut String, run_dir: &Path) -> Result<()> {
 /// The completed surface as an interactive 3-D view: where the prior had vessels in grey, the
 /// new vessels coloured by confidence (`mesh-confidence.ply`; without it the prior red and the
 /// new vessels blue, as `mesh-completion.png`).
-fn interactive_view(html: &mut String, run_dir: &Path, case: Option<&CaseFile>, case_dir: Option<&Path>) {
+fn interactive_view(
+    html: &mut String,
+    run_dir: &Path,
+    case: Option<&CaseFile>,
+    case_dir: Option<&Path>,
+    left_out: &mut Vec<String>,
+) {
     let Some(mesh_path) = ["obj", "ply", "stl"].iter().map(|e| run_dir.join(format!("mesh.{e}"))).find(|p| p.exists())
     else {
         return;
     };
-    let Ok(mesh) = read_mesh(&mesh_path) else { return };
+    let Some(mesh) = optional(&mesh_path, left_out, read_mesh) else { return };
     let prior = match (case.and_then(|c| c.prior.as_ref()), case_dir) {
-        (Some(p), Some(d)) => read_mesh(&d.join(&p.mesh)).ok(),
+        (Some(p), Some(d)) => optional(&d.join(&p.mesh), left_out, read_mesh),
         _ => None,
     };
     html.push_str("<h3>Interactive view</h3>");
@@ -239,11 +282,12 @@ fn interactive_view(html: &mut String, run_dir: &Path, case: Option<&CaseFile>, 
         None => (TriMesh::default(), mesh),
     };
     // The new vessels coloured by confidence where the run wrote it (`mesh-confidence.ply`).
-    let by_confidence = read_mesh_confidence(&run_dir.join(MESH_CONFIDENCE)).ok().map(|(scored, confidence)| {
-        let nearest = nearest_points(&new.vertices, &scored.vertices);
-        let at: Vec<f32> = nearest.iter().map(|&(_, i)| confidence.get(i).copied().unwrap_or(1.0)).collect();
-        faces_by_confidence(&new, &at)
-    });
+    let by_confidence =
+        optional(&run_dir.join(MESH_CONFIDENCE), left_out, read_mesh_confidence).map(|(scored, confidence)| {
+            let nearest = nearest_points(&new.vertices, &scored.vertices);
+            let at: Vec<f32> = nearest.iter().map(|&(_, i)| confidence.get(i).copied().unwrap_or(1.0)).collect();
+            faces_by_confidence(&new, &at)
+        });
     let names: Vec<String> = (0..CONFIDENCE_BINS)
         .map(|k| {
             format!(
@@ -449,12 +493,28 @@ mod tests {
         let poses = serde_json::json!({"views": [{"name": evil, "rotation_deg": [evil], "translation_mm": evil}]});
         std::fs::write(dir.join("poses.json"), poses.to_string()).unwrap();
         std::fs::write(dir.join("config.toml"), evil).unwrap();
-        let page = std::fs::read_to_string(write_report(&dir).unwrap()).unwrap();
+        let page = std::fs::read_to_string(write_report(&dir).unwrap().path).unwrap();
         assert!(!page.contains("<script>alert"), "unescaped script");
         assert!(!page.contains("<img src=x"), "unescaped element");
         assert!(page.contains("&lt;script&gt;alert(1)"), "the value is shown, escaped");
         // The page's own scripts: only the one that counts decoded images.
         assert_eq!(page.matches("<script").count(), 1, "one script of the page's own");
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// A file the page would show that is present but unreadable (a damaged mesh) is named at
+    /// the top of the page and in `left_out`, instead of its part silently missing.
+    #[test]
+    fn unreadable_parts_are_named_not_silently_dropped() {
+        let dir = std::env::temp_dir().join(format!("ctadsa-report-left-out-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(dir.join("summary.json"), serde_json::json!({"iterations": 3}).to_string()).unwrap();
+        std::fs::write(dir.join("mesh.obj"), "v 1 2\nf 1 2 3\n").unwrap();
+        let written = write_report(&dir).unwrap();
+        assert_eq!(written.left_out.len(), 1, "{:?}", written.left_out);
+        assert!(written.left_out[0].contains("mesh.obj"), "{:?}", written.left_out);
+        let page = std::fs::read_to_string(&written.path).unwrap();
+        assert!(page.contains("Left out of this page") && page.contains("mesh.obj"));
         std::fs::remove_dir_all(&dir).ok();
     }
 }

@@ -245,7 +245,9 @@ pub fn run_completion(
     if let Some(s) = summary.field_densities.filter(|_| summary.field_constant && !warned) {
         monitor.note(&collapse_warning(trainer.iteration(), s.p50));
     }
-    write_report(out)?;
+    for note in write_report(out)?.left_out {
+        monitor.note(&format!("the report leaves out {note}"));
+    }
     Ok(Outcome::Finished(Box::new(summary)))
 }
 
