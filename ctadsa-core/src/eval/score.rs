@@ -107,23 +107,55 @@ pub fn evaluate(
 
 /// [`evaluate`] on mesh files (OBJ, PLY or STL).
 pub fn evaluate_files(
-    pred: &Path,
+    pred_path: &Path,
     gt: &Path,
     split: Option<(&Path, &Path)>,
     missing_centreline: Option<&[Segment]>,
     o: &EvalOptions,
 ) -> Result<EvalReport> {
     o.validate()?;
-    let mut pred = read_mesh(pred)?;
+    let mut pred = read_mesh(pred_path)?;
     if o.min_island_mm2 > 0.0 {
         pred = pred.without_islands_below(o.min_island_mm2).0;
     }
-    let gt = read_mesh(gt)?;
+    let gt_mesh = read_mesh(gt)?;
+    check_same_frame(pred_path, &pred, &gt_mesh)?;
+    let gt = gt_mesh;
     let split = match split {
         Some((p, m)) => Some((read_mesh(p)?, read_mesh(m)?)),
         None => None,
     };
     Ok(evaluate(&pred, &gt, split.as_ref().map(|(p, m)| (p, m)), missing_centreline, o))
+}
+
+/// Refuses a predicted surface (read from `pred_path`) that cannot be in the truth's frame and
+/// unit: one whose extent (box diagonal) is under 1/50 or over 50 times the truth's (metres or
+/// micrometres for mm), or whose box lies farther from the truth's than the larger extent.
+/// Scores of such a pair are numbers about the files, not the surface.
+fn check_same_frame(pred_path: &Path, pred: &TriMesh, gt: &TriMesh) -> Result<()> {
+    let (Some((plo, phi)), Some((glo, ghi))) = (pred.bounds_mm(), gt.bounds_mm()) else { return Ok(()) };
+    let (pd, gd) = ((phi - plo).length(), (ghi - glo).length());
+    let ratio = pd / gd.max(1e-9);
+    if !(1.0 / 50.0..=50.0).contains(&ratio) {
+        return Err(CoreError::format(
+            pred_path,
+            format!(
+                "the surface spans {pd:.3} mm (box diagonal) where the ground truth spans {gd:.3} mm: \
+                 not in the truth's unit (both must be in mm)"
+            ),
+        ));
+    }
+    let gap = (glo - phi).max(plo - ghi).max(DVec3::ZERO).length();
+    if gap > pd.max(gd) {
+        return Err(CoreError::format(
+            pred_path,
+            format!(
+                "the surface's box lies {gap:.1} mm from the ground truth's (extents {pd:.1} and {gd:.1} mm): \
+                 not in the truth's frame (world mm, docs/DATA.md)"
+            ),
+        ));
+    }
+    Ok(())
 }
 
 /// A case's ground truth, loaded once for scoring any number of surfaces.
@@ -230,6 +262,26 @@ mod tests {
         let (roi, pri) = (r.roi.unwrap(), r.prior.unwrap());
         assert!((roi.cd_mean_mm - 1.0).abs() < 0.06, "ROI CD {}", roi.cd_mean_mm);
         assert!(pri.cd_mean_mm < 0.2, "prior-region CD {}", pri.cd_mean_mm);
+    }
+
+    /// A surface in metres, or shifted into another frame, is refused naming its file; a
+    /// prediction a little off (a vessel missing, 5 mm shifted) is scored.
+    #[test]
+    fn surfaces_in_another_unit_or_frame_are_refused() {
+        let gt = sphere(DVec3::ZERO, 50.0, 32);
+        let path = Path::new("pred.obj");
+        let scaled =
+            |f: f64| TriMesh { vertices: gt.vertices.iter().map(|v| *v * f).collect(), faces: gt.faces.clone() };
+        let shifted = |d: f64| TriMesh {
+            vertices: gt.vertices.iter().map(|v| *v + DVec3::new(d, 0.0, 0.0)).collect(),
+            faces: gt.faces.clone(),
+        };
+        let e = check_same_frame(path, &scaled(0.001), &gt).unwrap_err().to_string();
+        assert!(e.contains("pred.obj") && e.contains("unit"), "{e}");
+        let e = check_same_frame(path, &shifted(500.0), &gt).unwrap_err().to_string();
+        assert!(e.contains("pred.obj") && e.contains("frame"), "{e}");
+        check_same_frame(path, &shifted(5.0), &gt).unwrap();
+        check_same_frame(path, &sphere(DVec3::new(20.0, 0.0, 0.0), 10.0, 16), &gt).unwrap();
     }
 
     #[test]
