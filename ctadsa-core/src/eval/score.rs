@@ -122,23 +122,29 @@ pub fn evaluate_files(
     check_same_frame(pred_path, &pred, &gt_mesh)?;
     let gt = gt_mesh;
     let split = match split {
-        Some((p, m)) => Some((read_mesh(p)?, read_mesh(m)?)),
+        Some((p, m)) => {
+            let (prior, missing) = (read_mesh(p)?, read_mesh(m)?);
+            check_same_frame(p, &prior, &gt)?;
+            check_same_frame(m, &missing, &gt)?;
+            Some((prior, missing))
+        }
         None => None,
     };
     Ok(evaluate(&pred, &gt, split.as_ref().map(|(p, m)| (p, m)), missing_centreline, o))
 }
 
-/// Refuses a predicted surface (read from `pred_path`) that cannot be in the truth's frame and
+/// Refuses a surface (read from `path`: the prediction, or the prior / missing split) that
+/// cannot be in the truth's frame and
 /// unit: one whose extent (box diagonal) is under 1/50 or over 50 times the truth's (metres or
 /// micrometres for mm), or whose box lies farther from the truth's than the larger extent.
 /// Scores of such a pair are numbers about the files, not the surface.
-fn check_same_frame(pred_path: &Path, pred: &TriMesh, gt: &TriMesh) -> Result<()> {
-    let (Some((plo, phi)), Some((glo, ghi))) = (pred.bounds_mm(), gt.bounds_mm()) else { return Ok(()) };
+fn check_same_frame(path: &Path, mesh: &TriMesh, gt: &TriMesh) -> Result<()> {
+    let (Some((plo, phi)), Some((glo, ghi))) = (mesh.bounds_mm(), gt.bounds_mm()) else { return Ok(()) };
     let (pd, gd) = ((phi - plo).length(), (ghi - glo).length());
     let ratio = pd / gd.max(1e-9);
     if !(1.0 / 50.0..=50.0).contains(&ratio) {
         return Err(CoreError::format(
-            pred_path,
+            path,
             format!(
                 "the surface spans {pd:.3} mm (box diagonal) where the ground truth spans {gd:.3} mm: \
                  not in the truth's unit (both must be in mm)"
@@ -148,7 +154,7 @@ fn check_same_frame(pred_path: &Path, pred: &TriMesh, gt: &TriMesh) -> Result<()
     let gap = (glo - phi).max(plo - ghi).max(DVec3::ZERO).length();
     if gap > pd.max(gd) {
         return Err(CoreError::format(
-            pred_path,
+            path,
             format!(
                 "the surface's box lies {gap:.1} mm from the ground truth's (extents {pd:.1} and {gd:.1} mm): \
                  not in the truth's frame (world mm, docs/DATA.md)"
