@@ -414,6 +414,33 @@ fn damaged_checkpoints_are_refused_naming_the_file() {
     assert!(e.contains("stats.bin") && e.contains("bytes"), "{e}");
 }
 
+/// A case whose ground-truth surface is in another frame than its prior (here moved 1 m) is
+/// refused when its truth is loaded, naming both files, rather than scored as 1 m of error.
+#[test]
+fn a_ground_truth_in_another_frame_is_refused() {
+    use ctadsa_core::eval::score::CaseTruth;
+    let case = tiny_case();
+    assert!(CaseTruth::load(case).unwrap().is_some(), "the tiny case has a ground truth");
+    let moved = scratch("tiny-moved-truth");
+    copy_dir(&case.dir, &moved);
+    let gt = case.file.ground_truth.as_ref().unwrap();
+    let path = moved.join(&gt.complete_mesh);
+    let text = std::fs::read_to_string(&path).unwrap();
+    let shifted: String = text
+        .lines()
+        .map(|l| match l.strip_prefix("v ") {
+            Some(xyz) => {
+                let v: Vec<f64> = xyz.split_whitespace().map(|t| t.parse().unwrap()).collect();
+                format!("v {} {} {}\n", v[0] + 1000.0, v[1], v[2])
+            }
+            None => format!("{l}\n"),
+        })
+        .collect();
+    std::fs::write(&path, shifted).unwrap();
+    let e = CaseTruth::load(&Case::load(&moved).unwrap()).err().expect("refused").to_string();
+    assert!(e.contains("frame") && e.contains(&gt.complete_mesh), "{e}");
+}
+
 /// The fused Adam (default) against burn's Adam (`optim.adam = "burn"`, the reference) over a
 /// 50-step training run with densification: the same losses and Gaussians, bit for bit.
 #[test]

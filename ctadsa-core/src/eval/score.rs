@@ -108,7 +108,7 @@ pub fn evaluate(
 /// [`evaluate`] on mesh files (OBJ, PLY or STL).
 pub fn evaluate_files(
     pred_path: &Path,
-    gt: &Path,
+    gt_path: &Path,
     split: Option<(&Path, &Path)>,
     missing_centreline: Option<&[Segment]>,
     o: &EvalOptions,
@@ -118,14 +118,13 @@ pub fn evaluate_files(
     if o.min_island_mm2 > 0.0 {
         pred = pred.without_islands_below(o.min_island_mm2).0;
     }
-    let gt_mesh = read_mesh(gt)?;
-    check_same_frame(pred_path, &pred, &gt_mesh)?;
-    let gt = gt_mesh;
+    let gt = read_mesh(gt_path)?;
+    check_same_frame(pred_path, &pred, &gt, gt_path)?;
     let split = match split {
         Some((p, m)) => {
             let (prior, missing) = (read_mesh(p)?, read_mesh(m)?);
-            check_same_frame(p, &prior, &gt)?;
-            check_same_frame(m, &missing, &gt)?;
+            check_same_frame(p, &prior, &gt, gt_path)?;
+            check_same_frame(m, &missing, &gt, gt_path)?;
             Some((prior, missing))
         }
         None => None,
@@ -138,7 +137,7 @@ pub fn evaluate_files(
 /// unit: one whose extent (box diagonal) is under 1/50 or over 50 times the truth's (metres or
 /// micrometres for mm), or whose box lies farther from the truth's than the larger extent.
 /// Scores of such a pair are numbers about the files, not the surface.
-fn check_same_frame(path: &Path, mesh: &TriMesh, gt: &TriMesh) -> Result<()> {
+fn check_same_frame(path: &Path, mesh: &TriMesh, gt: &TriMesh, gt_path: &Path) -> Result<()> {
     let (Some((plo, phi)), Some((glo, ghi))) = (mesh.bounds_mm(), gt.bounds_mm()) else { return Ok(()) };
     let (pd, gd) = ((phi - plo).length(), (ghi - glo).length());
     let ratio = pd / gd.max(1e-9);
@@ -146,8 +145,9 @@ fn check_same_frame(path: &Path, mesh: &TriMesh, gt: &TriMesh) -> Result<()> {
         return Err(CoreError::format(
             path,
             format!(
-                "the surface spans {pd:.3} mm (box diagonal) where the ground truth spans {gd:.3} mm: \
-                 not in the truth's unit (both must be in mm)"
+                "the surface spans {pd:.3} mm (box diagonal) where the ground truth ({}) spans {gd:.3} mm: \
+                 not in the truth's unit (both must be in mm)",
+                gt_path.display()
             ),
         ));
     }
@@ -156,8 +156,9 @@ fn check_same_frame(path: &Path, mesh: &TriMesh, gt: &TriMesh) -> Result<()> {
         return Err(CoreError::format(
             path,
             format!(
-                "the surface's box lies {gap:.1} mm from the ground truth's (extents {pd:.1} and {gd:.1} mm): \
-                 not in the truth's frame (world mm, docs/DATA.md)"
+                "the surface's box lies {gap:.1} mm from the ground truth's ({}; extents {pd:.1} and {gd:.1} mm): \
+                 not in the truth's frame (world mm, docs/DATA.md)",
+                gt_path.display()
             ),
         ));
     }
@@ -187,7 +188,11 @@ impl CaseTruth {
         let complete = read_mesh(&complete_path)?;
         let split = match (&gt.missing_mesh, &case.file.prior) {
             (Some(missing), Some(prior)) => {
-                Some((read_mesh(&case.path(&prior.mesh))?, read_mesh(&case.path(missing))?))
+                let (prior_path, missing_path) = (case.path(&prior.mesh), case.path(missing));
+                let (prior, missing) = (read_mesh(&prior_path)?, read_mesh(&missing_path)?);
+                check_same_frame(&prior_path, &prior, &complete, &complete_path)?;
+                check_same_frame(&missing_path, &missing, &complete, &complete_path)?;
+                Some((prior, missing))
             }
             _ => None,
         };
@@ -282,12 +287,13 @@ mod tests {
             vertices: gt.vertices.iter().map(|v| *v + DVec3::new(d, 0.0, 0.0)).collect(),
             faces: gt.faces.clone(),
         };
-        let e = check_same_frame(path, &scaled(0.001), &gt).unwrap_err().to_string();
+        let truth = Path::new("truth.obj");
+        let e = check_same_frame(path, &scaled(0.001), &gt, truth).unwrap_err().to_string();
         assert!(e.contains("pred.obj") && e.contains("unit"), "{e}");
-        let e = check_same_frame(path, &shifted(500.0), &gt).unwrap_err().to_string();
-        assert!(e.contains("pred.obj") && e.contains("frame"), "{e}");
-        check_same_frame(path, &shifted(5.0), &gt).unwrap();
-        check_same_frame(path, &sphere(DVec3::new(20.0, 0.0, 0.0), 10.0, 16), &gt).unwrap();
+        let e = check_same_frame(path, &shifted(500.0), &gt, truth).unwrap_err().to_string();
+        assert!(e.contains("pred.obj") && e.contains("truth.obj") && e.contains("frame"), "{e}");
+        check_same_frame(path, &shifted(5.0), &gt, truth).unwrap();
+        check_same_frame(path, &sphere(DVec3::new(20.0, 0.0, 0.0), 10.0, 16), &gt, truth).unwrap();
     }
 
     #[test]
