@@ -152,7 +152,15 @@ pub fn parse_swc(text: &str) -> std::result::Result<SwcFile, String> {
     let mut warnings = Vec::new();
     let (rows, seen) = parse_rows(text, &mut warnings);
     if rows.is_empty() {
-        return Err("no usable SWC node".into());
+        return Err(match warnings.first() {
+            Some(w) => format!(
+                "no usable SWC node: {} row(s) refused, the first at line {}: {} (coordinates and radii are in mm)",
+                warnings.len(),
+                w.line,
+                w.problem
+            ),
+            None => "no usable SWC node".into(),
+        });
     }
     let mut nodes = Vec::with_capacity(rows.len());
     for row in &rows {
@@ -227,5 +235,12 @@ mod tests {
     #[test]
     fn empty_file_is_an_error() {
         assert!(parse_swc("# nothing\n\n").is_err());
+    }
+
+    /// A tree in micrometres refuses every row by its radius: the error says which and why.
+    #[test]
+    fn a_tree_with_no_usable_row_says_why() {
+        let e = parse_swc("1 1 95170 -102300 100440 930 -1\n2 3 93930 -99820 99820 930 1\n").unwrap_err();
+        assert!(e.contains("2 row(s) refused") && e.contains("line 1") && e.contains("radius 930"), "{e}");
     }
 }
