@@ -366,10 +366,23 @@ fn write_truth_and_priors(r: &Rasterised, out: &Path) -> Result<WrittenPriors> {
             let r = t.nodes.iter().map(|n| n.radius_mm).fold(0.0, f64::max);
             format!(" (thickest vessel radius {r} mm)")
         });
+        // A tree in another unit (m, µm) spans far less or far more than a head.
+        let unit_hint = r.tree.as_ref().and_then(|t| {
+            let first = t.nodes.first()?.position_mm;
+            let (lo, hi) =
+                t.nodes.iter().fold((first, first), |(lo, hi), n| (lo.min(n.position_mm), hi.max(n.position_mm)));
+            let span = (hi - lo).length();
+            (!(10.0..=1000.0).contains(&span)).then(|| {
+                format!(
+                    "; the tree spans {span:.4} mm where a cerebral tree spans 50–300 mm: are its coordinates in mm?"
+                )
+            })
+        });
         let voxel = grid.spacing_mm[0];
         return Err(CoreError::invalid(format!(
             "the anatomy produced no surface at {voxel} mm voxels{thickest}: its vessels are thinner than a \
-             voxel; set a smaller voxel size"
+             voxel; set a smaller voxel size{}",
+            unit_hint.unwrap_or_default()
         )));
     }
     write_mesh(&out.join("gt/complete.obj"), &complete_mesh)?;
