@@ -13,8 +13,9 @@ use crate::data::mesh::TriMesh;
 use crate::error::{CoreError, Result};
 
 /// Refuses a prior whose triangles have no area (nothing to place Gaussians on), with a vertex
-/// as far from the isocentre as an X-ray source (no anatomy the views image lies there), or with
-/// no vertex that projects onto every view's detector.
+/// as far from the isocentre as an X-ray source (no anatomy the views image lies there), smaller
+/// than one detector pixel at the isocentre (another unit), or with no vertex that projects onto
+/// every view's detector.
 pub fn check_prior_in_views(mesh: &TriMesh, views: &[ConeBeamView], path: &Path) -> Result<()> {
     let area = mesh.area_mm2();
     if !(area > 0.0 && area.is_finite()) {
@@ -43,6 +44,23 @@ pub fn check_prior_in_views(mesh: &TriMesh, views: &[ConeBeamView], path: &Path)
             ),
         ));
     }
+    // One detector pixel seen at the isocentre (mm): a prior smaller than that (a tree written
+    // in metres spans a fraction of a millimetre) is in another unit.
+    let pixel_at_isocentre_mm = views
+        .iter()
+        .map(|v| v.source_mm().length() / v.intrinsics().focal_px[0].abs().max(v.intrinsics().focal_px[1].abs()))
+        .fold(f64::INFINITY, f64::min);
+    let (lo, hi) = mesh.bounds_mm().unwrap_or_default();
+    let span = (hi - lo).length();
+    if span < pixel_at_isocentre_mm {
+        return Err(CoreError::format(
+            path,
+            format!(
+                "the prior spans {span:.4} mm (box diagonal), less than one detector pixel at the isocentre \
+                 ({pixel_at_isocentre_mm:.2} mm): it must be in mm (metres?)"
+            ),
+        ));
+    }
     let on_every_detector = |p: &glam::DVec3| {
         views.iter().all(|v| {
             v.project(*p).is_some_and(|uv| {
@@ -51,7 +69,6 @@ pub fn check_prior_in_views(mesh: &TriMesh, views: &[ConeBeamView], path: &Path)
         })
     };
     if !mesh.vertices.iter().any(on_every_detector) {
-        let (lo, hi) = mesh.bounds_mm().unwrap_or_default();
         return Err(CoreError::format(
             path,
             format!(
@@ -106,6 +123,14 @@ mod tests {
         mesh.vertices[2] = DVec3::new(2.0, 0.0, 0.0); // collinear
         let err = check_prior_in_views(&mesh, &views(), Path::new("p.obj")).unwrap_err().to_string();
         assert!(err.contains("p.obj") && err.contains("degenerate"), "{err}");
+    }
+
+    #[test]
+    fn a_prior_in_metres_is_refused() {
+        let mesh = triangle_at(DVec3::ZERO);
+        let metres = TriMesh { vertices: mesh.vertices.iter().map(|v| *v * 1e-3).collect(), faces: mesh.faces };
+        let err = check_prior_in_views(&metres, &views(), Path::new("p.obj")).unwrap_err().to_string();
+        assert!(err.contains("p.obj") && err.contains("one detector pixel"), "{err}");
     }
 
     #[test]
