@@ -111,7 +111,7 @@ fn malformed_swc_trees_are_refused_naming_the_file() {
     std::fs::write(dir.join("thin.swc"), "1 1 0 0 0 1e-9 -1\n2 1 100 0 0 1e-9 1\n").unwrap();
     refused(&dir, &["synth", "--tree", "thin.swc", "--out", "out/c"], &["thinner than a voxel"]);
     // A tree in metres (a 0.1 mm tree): the message asks for millimetres.
-    std::fs::write(dir.join("metres.swc"), "1 1 0 0 0 0.002 -1\n2 1 0.1 0 0 0.001 1\n").unwrap();
+    std::fs::write(dir.join("metres.swc"), "1 1 0 0 0 1e-7 -1\n2 1 0.1 0 0 1e-7 1\n").unwrap();
     refused(&dir, &["synth", "--tree", "metres.swc", "--out", "out/c"], &["spans 0.1000 mm", "in mm?"]);
 }
 

@@ -133,9 +133,9 @@ pub fn evaluate_files(
 }
 
 /// Refuses a surface (read from `path`: the prediction, or the prior / missing split) that
-/// cannot be in the truth's frame and
-/// unit: one whose extent (box diagonal) is under 1/50 or over 50 times the truth's (metres or
-/// micrometres for mm), or whose box lies farther from the truth's than the larger extent.
+/// cannot be in the frame and unit of the truth (read from `gt_path`): one whose extent (box
+/// diagonal) is under 1/50 or over 50 times the truth's (metres or micrometres for mm), or whose
+/// box lies farther from the truth's than the larger extent.
 /// Scores of such a pair are numbers about the files, not the surface.
 fn check_same_frame(path: &Path, mesh: &TriMesh, gt: &TriMesh, gt_path: &Path) -> Result<()> {
     let (Some((plo, phi)), Some((glo, ghi))) = (mesh.bounds_mm(), gt.bounds_mm()) else { return Ok(()) };

@@ -368,9 +368,7 @@ fn write_truth_and_priors(r: &Rasterised, out: &Path) -> Result<WrittenPriors> {
         });
         // A tree in another unit (m, µm) spans far less or far more than a head.
         let unit_hint = r.tree.as_ref().and_then(|t| {
-            let first = t.nodes.first()?.position_mm;
-            let (lo, hi) =
-                t.nodes.iter().fold((first, first), |(lo, hi), n| (lo.min(n.position_mm), hi.max(n.position_mm)));
+            let (lo, hi) = t.bounds_mm()?;
             let span = (hi - lo).length();
             (!(10.0..=1000.0).contains(&span)).then(|| {
                 format!(

@@ -351,13 +351,13 @@ impl Trainer {
             t.poses = Some((poses, optim));
         }
         let stats = read_file(&checkpoint.join("stats.bin"))?;
-        let vals: Vec<f32> = stats.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
         if stats.len() != 8 * n {
             return Err(CoreError::format(
                 &checkpoint.join("stats.bin"),
                 format!("{} bytes, where {n} Gaussians' densification statistics take {}", stats.len(), 8 * n),
             ));
         }
+        let vals: Vec<f32> = stats.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
         t.stats = DensifyStats { sum: vals[..n].to_vec(), count: vals[n..].to_vec() };
         t.case_fingerprint = fingerprint;
         t.iteration = state.iteration;
