@@ -16,23 +16,32 @@ use crate::backend::BackendKind;
 pub struct BenchArgs {
     #[command(subcommand)]
     what: BenchWhat,
-    /// Worker threads (rayon) for the CPU kernels.
-    #[arg(long, default_value_t = 2, global = true)]
+    /// Worker threads (rayon) for the CPU kernels, 1 to 1,024 (each is an OS thread with its own
+    /// stack: 10^5 of them exhaust the machine).
+    #[arg(long, default_value_t = 2, global = true, value_parser = in_range(1, 1_024))]
     threads: usize,
+}
+
+/// The most timed steps a bench accepts (a step takes tens of ms to seconds).
+const MAX_STEPS: u64 = 100_000;
+
+/// A flag's value parser accepting the integers `lo..=hi`: clap refuses others naming the flag.
+fn in_range(lo: u64, hi: u64) -> clap::builder::RangedU64ValueParser<usize> {
+    clap::builder::RangedU64ValueParser::new().range(lo..=hi)
 }
 
 #[derive(Subcommand)]
 enum BenchWhat {
     /// Forward and backward of the Gaussian renderer on a vessel-like scene.
     Render {
-        /// Number of Gaussians.
-        #[arg(long, default_value_t = 60_000)]
+        /// Number of Gaussians (1 to 10^7).
+        #[arg(long, default_value_t = 60_000, value_parser = in_range(1, 10_000_000))]
         gaussians: usize,
-        /// Detector size (pixels per side) of each of the two views (AP, LAT).
-        #[arg(long, default_value_t = 512)]
+        /// Detector size (pixels per side, 8 to 4,096) of each of the two views (AP, LAT).
+        #[arg(long, default_value_t = 512, value_parser = clap::value_parser!(u32).range(8..=4096))]
         size: u32,
-        /// Timed repetitions (after one warm-up); the median is reported.
-        #[arg(long, default_value_t = 5)]
+        /// Timed repetitions (1 to 1,000, after one warm-up); the median is reported.
+        #[arg(long, default_value_t = 5, value_parser = in_range(1, 1_000))]
         repeats: usize,
         /// Also time the burn op on this backend (including tensor transfers).
         #[arg(long, value_enum)]
@@ -50,15 +59,15 @@ enum BenchWhat {
         /// Override a config value (repeatable), e.g. init.n1=30000.
         #[arg(long = "set")]
         overrides: Vec<String>,
-        /// Timed steps (after 2 warm-up steps); the mean per stage is reported.
-        #[arg(long, default_value_t = 20)]
+        /// Timed steps (1 to 100,000, after 2 warm-up steps); the mean per stage is reported.
+        #[arg(long, default_value_t = 20, value_parser = in_range(1, MAX_STEPS))]
         steps: usize,
         /// Backend.
         #[arg(long, value_enum, default_value = "ndarray")]
         backend: BackendKind,
         /// Further steps with every kernel launch timed on the device (wgpu; a table of device
         /// time per kernel). Timing each launch slows the pass: these steps are timed apart.
-        #[arg(long, default_value_t = 0)]
+        #[arg(long, default_value_t = 0, value_parser = in_range(0, MAX_STEPS))]
         device_timed_steps: usize,
     },
     /// One table of the training step for the configurations users run: the quick config on the
@@ -66,8 +75,8 @@ enum BenchWhat {
     /// hash table at 2^19 and at the reference's 2^20, and at 100k Gaussians (the size a paper
     /// run grows to); the peak memory is reset before each row (Linux).
     TrainSuite {
-        /// Timed steps per row (after 2 warm-up steps).
-        #[arg(long, default_value_t = 5)]
+        /// Timed steps per row (1 to 100,000, after 2 warm-up steps).
+        #[arg(long, default_value_t = 5, value_parser = in_range(1, MAX_STEPS))]
         steps: usize,
         /// Backend of every row.
         #[arg(long, value_enum, default_value = "ndarray")]
@@ -75,11 +84,11 @@ enum BenchWhat {
     },
     /// Our voxel projector against plastimatch's DRR on the same vessel volume.
     Projector {
-        /// Voxels along each side of the cubic volume.
-        #[arg(long, default_value_t = 256)]
+        /// Voxels along each side of the cubic volume (8 to 1,024).
+        #[arg(long, default_value_t = 256, value_parser = in_range(8, 1_024))]
         voxels: usize,
-        /// Detector size (pixels per side).
-        #[arg(long, default_value_t = 512)]
+        /// Detector size (pixels per side, 8 to 4,096).
+        #[arg(long, default_value_t = 512, value_parser = clap::value_parser!(u32).range(8..=4096))]
         size: u32,
     },
 }
@@ -285,8 +294,6 @@ pub fn bench_train(
 }
 
 pub fn run(args: BenchArgs) -> Result<()> {
-    // Each worker is an OS thread with its own stack: 10^5 of them exhaust the machine.
-    anyhow::ensure!((1..=1024).contains(&args.threads), "--threads must be in 1..=1024, got {}", args.threads);
     rayon::ThreadPoolBuilder::new().num_threads(args.threads).build_global().context("setting up threads")?;
     match args.what {
         BenchWhat::Render { gaussians, size, repeats, backend } => {
@@ -298,9 +305,6 @@ pub fn run(args: BenchArgs) -> Result<()> {
             Ok(())
         }
         BenchWhat::Projector { voxels, size } => {
-            if !(8..=1024).contains(&voxels) || !(8..=4096).contains(&size) {
-                anyhow::bail!("--voxels must be in 8..=1024 and --size in 8..=4096, got {voxels} and {size}");
-            }
             print_projector(&bench_projector(voxels, size)?);
             Ok(())
         }

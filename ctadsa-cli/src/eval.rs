@@ -112,6 +112,9 @@ pub fn run(args: EvalArgs) -> Result<()> {
         (Some(p), Some(m)) => Some((p.as_path(), m.as_path())),
         _ => None,
     };
+    let v = args.topology_voxel_mm;
+    // Checked before the distances are computed: a bad flag should not cost the scoring first.
+    anyhow::ensure!(v.is_finite() && (0.05..=10.0).contains(&v), "--topology-voxel-mm must be in [0.05, 10], got {v}");
     let tree = match &args.tree {
         Some(path) => Some(read_swc(path)?.tree),
         None => None,
@@ -128,10 +131,6 @@ pub fn run(args: EvalArgs) -> Result<()> {
     let topology = match &tree {
         Some(tree) => {
             let v = args.topology_voxel_mm;
-            anyhow::ensure!(
-                v.is_finite() && (0.05..=10.0).contains(&v),
-                "--topology-voxel-mm must be in [0.05, 10], got {v}"
-            );
             let t = topology_of_surfaces(&read_mesh(&args.pred)?, &read_mesh(&args.gt)?, &tree.segments(), v)?;
             println!(
                 "\ntopology on {v} mm voxels: clDice {:.3} (topology precision {:.3}, sensitivity {:.3}), \

@@ -116,7 +116,7 @@ fn malformed_swc_trees_are_refused_naming_the_file() {
 }
 
 #[test]
-fn out_of_range_synth_flags_are_refused_naming_the_flag() {
+fn out_of_range_flags_are_refused_naming_the_flag() {
     let dir = sandbox("synth-flags");
     let base = ["synth", "--out", "out/c", "--terminals", "8", "--detector-px", "64"];
     for (flag, value, expect) in [
@@ -135,8 +135,21 @@ fn out_of_range_synth_flags_are_refused_naming_the_flag() {
     }
     // Growth is quadratic in the terminals: 10^8 would run for days.
     refused(&dir, &["synth", "--out", "out/c", "--terminals", "100000000"], &["--terminals", "10000 terminals"]);
-    refused(&dir, &["bench", "projector", "--voxels", "0"], &["--voxels"]);
-    refused(&dir, &["bench", "--threads", "100000", "projector"], &["--threads"]);
+    // Bench sizes: a billion Gaussians or a 10^5-pixel detector would allocate for minutes, then abort.
+    for args in [
+        ["bench", "projector", "--voxels", "0"],
+        ["bench", "--threads", "100000", "projector"],
+        ["bench", "render", "--gaussians", "1000000000"],
+        ["bench", "render", "--gaussians", "0"],
+        ["bench", "render", "--size", "0"],
+        ["bench", "render", "--repeats", "0"],
+        ["bench", "train", "--steps", "0"],
+        ["bench", "train-suite", "--steps", "1000000000000"],
+    ] {
+        refused(&dir, &args, &[args[args.len() - 2]]);
+    }
+    // Checked before any file is read or scored.
+    refused(&dir, &["eval", "--pred", "a.obj", "--gt", "b.obj", "--topology-voxel-mm", "0"], &["--topology-voxel-mm"]);
 }
 
 #[test]
