@@ -32,8 +32,8 @@ use crate::method::training_time::TrainingTime;
 use crate::output::centreline::{CentrelineSummary, SolidPart, completed_centreline, write_centreline};
 use crate::output::confidence::{MESH_CONFIDENCE, mesh_without_doubtful, vertex_confidence, write_mesh_confidence};
 use crate::output::extraction::{
-    LevelScore, best_level, bridged_solid, completed_solid, density_scale, faint_level_field, join_prior,
-    keep_connected_to_prior, level_field, prior_solid, score_levels,
+    LevelReach, LevelScore, best_level, bridged_solid, completed_solid, density_scale, faint_level_field, join_prior,
+    keep_connected_to_prior, level_field, prior_solid,
 };
 use crate::output::plot::{PALETTE, Series, line_plot};
 use ctadsa_ops::readback::host_vec;
@@ -398,19 +398,22 @@ fn extract_completed_surface(
 ) -> Result<CompletedSurface> {
     let out = &trainer.cfg().output;
     let solid = prior.filter(|_| out.keep_prior).map(|p| prior_solid(p, volume));
-    let level_scores = if out.level_from_views {
-        let threshold = out.level_mask_threshold_for(trainer.views().views().len(), trainer.cfg().init.mask_threshold);
-        score_levels(volume, trainer.views().views(), trainer.images(), threshold, solid.as_ref())
-    } else {
-        Vec::new()
+    let views = trainer.views().views();
+    // What the views see of the solid at every candidate level: one projection for the level,
+    // the faint level and (with the prior kept) the near-prior level.
+    let reach = out.level_from_views.then(|| LevelReach::new(volume, views, solid.as_ref()));
+    let level_scores = match &reach {
+        Some(reach) => {
+            reach.scores(trainer.images(), out.level_mask_threshold_for(views.len(), trainer.cfg().init.mask_threshold))
+        }
+        None => Vec::new(),
     };
     let level = match best_level(&level_scores) {
         Some(best) => best.level,
         None => mc_level(volume, out.mc_level, out.mc_relative),
     };
-    let faint = (out.faint_mask_threshold > 0.0 && out.level_from_views).then(|| {
-        let scores =
-            score_levels(volume, trainer.views().views(), trainer.images(), out.faint_mask_threshold, solid.as_ref());
+    let faint = reach.as_ref().filter(|_| out.faint_mask_threshold > 0.0).map(|reach| {
+        let scores = reach.scores(trainer.images(), out.faint_mask_threshold);
         let low = best_level(&scores).map_or(level, |b| b.level.min(level));
         let radius = (out.faint_radius_mm / volume.grid.spacing_mm[0]).round() as usize;
         (low, faint_level_field(volume, level, low, out.faint_fraction, radius))
@@ -421,10 +424,13 @@ fn extract_completed_surface(
         .then(|| solid.as_ref().map(Cow::Borrowed).or_else(|| prior.map(|p| Cow::Owned(prior_solid(p, volume)))))
         .flatten();
     let near_prior_level = near_solid
-        .as_deref()
+        .as_ref()
         .and_then(|s| {
-            let views = trainer.views().views();
-            best_level(&score_levels(volume, views, trainer.images(), out.near_prior_mask_threshold, Some(s)))
+            let scores = match (s, &reach) {
+                (Cow::Borrowed(_), Some(reach)) => reach.scores(trainer.images(), out.near_prior_mask_threshold),
+                _ => LevelReach::new(volume, views, Some(&**s)).scores(trainer.images(), out.near_prior_mask_threshold),
+            };
+            best_level(&scores)
         })
         .map(|b| b.level)
         .filter(|&l| l < level);

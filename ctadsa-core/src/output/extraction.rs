@@ -18,7 +18,7 @@ use crate::data::masks::{Mask, vessel_mask};
 use crate::data::mesh::TriMesh;
 use crate::data::mesh::distance::SurfaceIndex;
 use crate::data::mesh::voxelize::voxelize_mesh;
-use crate::data::projector::project_volume;
+use crate::data::projector::project_volume_max;
 use crate::data::volume::Volume;
 use crate::data::volume::edt::squared_edt;
 use crate::stats::percentile;
@@ -63,23 +63,56 @@ pub fn score_levels(
     mask_threshold: f64,
     keep: Option<&Volume<u8>>,
 ) -> Vec<LevelScore> {
-    let masks: Vec<Mask> = images.iter().map(|i| vessel_mask(i, mask_threshold)).collect();
-    let scale = density_scale(volume);
-    LEVEL_FRACTIONS
-        .iter()
-        .map(|&fraction| {
-            let level = fraction * scale;
-            let solid = completed_solid(volume, level, keep).map(f32::from);
-            let sil = project_volume(&solid, views);
-            let dice = sil
+    LevelReach::new(volume, views, keep).scores(images, mask_threshold)
+}
+
+/// What the views see of the completed solid at every level at once: per view and pixel, the
+/// highest density its ray crosses (`+∞` where it crosses `keep`). The silhouette of the solid
+/// `density ≥ level` (joined with `keep`) is `reach ≥ level`, so one maximum-value projection
+/// replaces one projection per candidate level.
+#[derive(Debug, Clone)]
+pub struct LevelReach {
+    /// [`density_scale`] of the volume (candidate levels are fractions of it).
+    scale: f64,
+    /// `[V][H·W]`, density units.
+    reach: Vec<Vec<f32>>,
+}
+
+impl LevelReach {
+    /// Projects `volume` (joined with `keep`) into `views`.
+    pub fn new(volume: &Volume<f32>, views: &[ConeBeamView], keep: Option<&Volume<u8>>) -> Self {
+        let joined = Volume {
+            grid: volume.grid,
+            index_to_world: volume.index_to_world,
+            data: volume
+                .data
                 .iter()
-                .zip(&masks)
-                .map(|(s, m)| dice(&s.iter().map(|&v| v > 0.0).collect::<Vec<_>>(), &m.data))
-                .sum::<f64>()
-                / masks.len().max(1) as f64;
-            LevelScore { fraction, level, dice }
-        })
-        .collect()
+                .enumerate()
+                .map(|(i, &d)| if keep.is_some_and(|k| k.data[i] != 0) { f32::INFINITY } else { d })
+                .collect(),
+        };
+        Self { scale: density_scale(volume), reach: project_volume_max(&joined, views) }
+    }
+
+    /// One score per candidate level ([`LEVEL_FRACTIONS`], in order): the mean over the views of
+    /// the Dice of the level's silhouette and the vessel mask at `mask_threshold`.
+    pub fn scores(&self, images: &[Image], mask_threshold: f64) -> Vec<LevelScore> {
+        let masks: Vec<Mask> = images.iter().map(|i| vessel_mask(i, mask_threshold)).collect();
+        LEVEL_FRACTIONS
+            .iter()
+            .map(|&fraction| {
+                let level = fraction * self.scale;
+                let dice = self
+                    .reach
+                    .iter()
+                    .zip(&masks)
+                    .map(|(r, m)| dice(&r.iter().map(|&v| v as f64 >= level).collect::<Vec<_>>(), &m.data))
+                    .sum::<f64>()
+                    / masks.len().max(1) as f64;
+                LevelScore { fraction, level, dice }
+            })
+            .collect()
+    }
 }
 
 /// `density ≥ level`, joined with `keep` (e.g. the prior's voxels) where given.
@@ -253,6 +286,74 @@ mod tests {
         let mesh = extract_isosurface(&density, 0.5);
         assert_eq!(keep_connected_to_prior(&mesh, &density, 0.05, &solid).1, 0);
         assert_eq!(keep_connected_to_prior(&mesh, &density, 0.2, &solid).1, 1);
+    }
+
+    /// The slow, obvious score of each level: its solid voxelised, projected exactly (line
+    /// integrals), the pixels with a positive integral compared with the mask.
+    fn score_levels_one_projection_each(
+        volume: &Volume<f32>,
+        views: &[ConeBeamView],
+        images: &[Image],
+        mask_threshold: f64,
+        keep: Option<&Volume<u8>>,
+    ) -> Vec<LevelScore> {
+        let masks: Vec<Mask> = images.iter().map(|i| vessel_mask(i, mask_threshold)).collect();
+        let scale = density_scale(volume);
+        LEVEL_FRACTIONS
+            .iter()
+            .map(|&fraction| {
+                let level = fraction * scale;
+                let solid = completed_solid(volume, level, keep).map(f32::from);
+                let sil = crate::data::projector::project_volume(&solid, views);
+                let dice = sil
+                    .iter()
+                    .zip(&masks)
+                    .map(|(s, m)| dice(&s.iter().map(|&v| v > 0.0).collect::<Vec<_>>(), &m.data))
+                    .sum::<f64>()
+                    / masks.len() as f64;
+                LevelScore { fraction, level, dice }
+            })
+            .collect()
+    }
+
+    #[test]
+    fn one_maximum_projection_scores_every_level_as_one_projection_each() {
+        use ctadsa_render::TigreGeometry;
+        // Densities spread over three decades, so that every candidate level cuts a different
+        // solid; the views see the 40 mm scene on 56 × 56 px of 1 mm.
+        let (mut density, solid) = scene(0.3);
+        let mut state = 12345u64;
+        for (i, d) in density.data.iter_mut().enumerate() {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            let r = (state >> 33) as f64 / (1u64 << 31) as f64;
+            if *d > 0.0 || i % 7 == 0 {
+                *d = (10f64.powf(-3.0 * r)) as f32;
+            }
+        }
+        let views: Vec<ConeBeamView> = [0.0, 90.0, 35.0]
+            .iter()
+            .map(|&deg| {
+                let g = TigreGeometry {
+                    detector_px: [56, 56],
+                    pixel_mm: [1.0, 1.0],
+                    offset_mm: [-20.0 * 1.4, 6.0 * 1.4],
+                    ..TigreGeometry::reference(deg)
+                };
+                ConeBeamView::from_tigre(&g).unwrap()
+            })
+            .collect();
+        // Masks from the density's own projection, so that the Dice varies across the levels.
+        let images: Vec<Image> = crate::data::projector::project_volume(&density, &views)
+            .into_iter()
+            .map(|data| Image { width: 56, height: 56, data })
+            .collect();
+        for keep in [None, Some(&solid)] {
+            let fast = score_levels(&density, &views, &images, 0.1, keep);
+            let slow = score_levels_one_projection_each(&density, &views, &images, 0.1, keep);
+            assert_eq!(fast, slow, "keep: {}", keep.is_some());
+            let dice: Vec<f64> = fast.iter().map(|s| s.dice).collect();
+            assert!(dice.iter().any(|&d| d != dice[0]), "the levels differ: {dice:?}");
+        }
     }
 }
 

@@ -36,6 +36,30 @@ fn nonzero_box(volume: &Volume<f32>) -> Option<([usize; 3], [usize; 3])> {
 /// Line integral of the volume along `origin + t·dir` (|dir| = 1, t ≥ 0), over the voxels
 /// `lo..=hi` only (values elsewhere must be zero).
 fn ray_integral(volume: &Volume<f32>, lo: [usize; 3], hi: [usize; 3], origin: DVec3, dir: DVec3) -> f64 {
+    let mut sum = 0.0;
+    traverse(volume, lo, hi, origin, dir, |v, length| sum += length * v as f64);
+    sum
+}
+
+/// The largest value of the voxels `lo..=hi` that the ray `origin + t·dir` crosses with a
+/// positive length (0 when it crosses none with a positive value).
+fn ray_max(volume: &Volume<f32>, lo: [usize; 3], hi: [usize; 3], origin: DVec3, dir: DVec3) -> f32 {
+    let mut max = 0.0f32;
+    traverse(volume, lo, hi, origin, dir, |v, _| max = max.max(v));
+    max
+}
+
+/// Visits the non-zero voxels among `lo..=hi` that the ray `origin + t·dir` (|dir| = 1, t ≥ 0)
+/// crosses, in order, with the length (mm) of the ray inside each (always > 0).
+#[inline(always)]
+fn traverse(
+    volume: &Volume<f32>,
+    lo: [usize; 3],
+    hi: [usize; 3],
+    origin: DVec3,
+    dir: DVec3,
+    mut visit: impl FnMut(f32, f64),
+) {
     let g: &Grid = &volume.grid;
     let h = DVec3::from(g.spacing_mm);
     let box_min = DVec3::from(g.origin_mm) + DVec3::new(lo[0] as f64, lo[1] as f64, lo[2] as f64) * h;
@@ -46,7 +70,7 @@ fn ray_integral(volume: &Volume<f32>, lo: [usize; 3], hi: [usize; 3], origin: DV
     for a in 0..3 {
         if dir[a].abs() < 1e-300 {
             if origin[a] < box_min[a] || origin[a] > box_max[a] {
-                return 0.0;
+                return;
             }
         } else {
             let (ta, tb) = ((box_min[a] - origin[a]) / dir[a], (box_max[a] - origin[a]) / dir[a]);
@@ -55,7 +79,7 @@ fn ray_integral(volume: &Volume<f32>, lo: [usize; 3], hi: [usize; 3], origin: DV
         }
     }
     if !(t1 > t0) {
-        return 0.0;
+        return;
     }
     // Starting voxel (clamped into the box against rounding).
     let p = origin + dir * (t0 + 1e-9 * (t1 - t0));
@@ -79,7 +103,6 @@ fn ray_integral(volume: &Volume<f32>, lo: [usize; 3], hi: [usize; 3], origin: DV
         }
     }
     let mut t = t0;
-    let mut sum = 0.0;
     loop {
         let a = if t_max[0] <= t_max[1] && t_max[0] <= t_max[2] {
             0
@@ -91,7 +114,7 @@ fn ray_integral(volume: &Volume<f32>, lo: [usize; 3], hi: [usize; 3], origin: DV
         let t_next = t_max[a].min(t1);
         let v = volume.data[g.index(idx[0] as usize, idx[1] as usize, idx[2] as usize)];
         if v != 0.0 && t_next > t {
-            sum += (t_next - t) * v as f64;
+            visit(v, t_next - t);
         }
         if t_next >= t1 {
             break;
@@ -103,12 +126,31 @@ fn ray_integral(volume: &Volume<f32>, lo: [usize; 3], hi: [usize; 3], origin: DV
         }
         t_max[a] += t_delta[a];
     }
-    sum
 }
 
 /// Projects `volume` into every view: `[V, H, W]` (row-major per view) line integrals of the
 /// voxel values in value × mm. Views may differ in size; each view's image is `H × W` of its own.
 pub fn project_volume(volume: &Volume<f32>, views: &[ConeBeamView]) -> Vec<Vec<f32>> {
+    project_each_ray(volume, views, |lo, hi, source, dir| ray_integral(volume, lo, hi, source, dir) as f32)
+}
+
+/// Maximum-value projection of `volume` into every view (`[V, H, W]`, as [`project_volume`]):
+/// per pixel the largest value of the voxels its ray crosses, 0 where it crosses no positive
+/// one. A pixel's ray meets the solid `value ≥ level` (any `level > 0`) where this is
+/// `≥ level`: one projection gives the silhouettes of every level. (Projecting each solid
+/// instead traverses its own, smaller box: a ray that grazes a voxel's edge can round the other
+/// way there.)
+pub fn project_volume_max(volume: &Volume<f32>, views: &[ConeBeamView]) -> Vec<Vec<f32>> {
+    project_each_ray(volume, views, |lo, hi, source, dir| ray_max(volume, lo, hi, source, dir))
+}
+
+/// Every pixel of every view gets `per_ray(lo, hi, source, direction)` over the volume's
+/// non-zero box (0 everywhere when the volume is all zero).
+fn project_each_ray(
+    volume: &Volume<f32>,
+    views: &[ConeBeamView],
+    per_ray: impl Fn([usize; 3], [usize; 3], DVec3, DVec3) -> f32 + Sync,
+) -> Vec<Vec<f32>> {
     let Some((lo, hi)) = nonzero_box(volume) else {
         return views.iter().map(|v| vec![0.0; (v.width() * v.height()) as usize]).collect();
     };
@@ -121,7 +163,7 @@ pub fn project_volume(volume: &Volume<f32>, views: &[ConeBeamView]) -> Vec<Vec<f
             image.par_chunks_mut(w).enumerate().for_each(|(row, out)| {
                 for (col, o) in out.iter_mut().enumerate() {
                     let dir = view.pixel_ray(col as f64, row as f64);
-                    *o = ray_integral(volume, lo, hi, source, dir) as f32;
+                    *o = per_ray(lo, hi, source, dir);
                 }
             });
             image
