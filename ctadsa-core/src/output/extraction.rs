@@ -11,6 +11,7 @@
 
 use ctadsa_render::ConeBeamView;
 use glam::DVec3;
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::data::case::images::Image;
@@ -418,22 +419,37 @@ pub fn faint_level_field(volume: &Volume<f32>, level: f64, low: f64, fraction: f
 }
 
 /// The maximum over a cube of half-width `radius` voxels (separable, one axis at a time);
-/// `data` is indexed `(i · ny + j) · nz + k` for `dims = [nx, ny, nz]`.
+/// `data` is indexed `(i · ny + j) · nz + k` for `dims = [nx, ny, nz]`. Along y and x the
+/// maximum is taken over whole contiguous rows / planes at once (vectorised, in parallel).
 fn max_filter(data: &[f32], dims: [usize; 3], radius: usize) -> Vec<f32> {
-    let strides = [dims[1] * dims[2], dims[2], 1];
-    let mut current = data.to_vec();
-    for axis in 0..3 {
-        let (n, stride) = (dims[axis], strides[axis]);
-        let mut next = vec![0.0f32; current.len()];
-        for (start, out) in next.iter_mut().enumerate() {
-            let along = (start / stride) % n;
-            let first = start - along.min(radius) * stride;
-            let count = along.min(radius) + (n - 1 - along).min(radius) + 1;
-            *out = (0..count).map(|s| current[first + s * stride]).fold(f32::NEG_INFINITY, f32::max);
-        }
-        current = next;
+    let [nx, ny, nz] = dims;
+    if data.is_empty() || nx * ny * nz != data.len() {
+        return data.to_vec();
     }
-    current
+    let window = |at: usize, n: usize| at.saturating_sub(radius)..=(at + radius).min(n - 1);
+    // Along z, within each contiguous line.
+    let mut along_z = vec![0.0f32; data.len()];
+    along_z.par_chunks_mut(nz).zip(data.par_chunks(nz)).for_each(|(out, line)| {
+        for (k, o) in out.iter_mut().enumerate() {
+            *o = line[window(k, nz)].iter().copied().fold(f32::NEG_INFINITY, f32::max);
+        }
+    });
+    // Along y then x: each output row (plane) is the element-wise maximum of its neighbours.
+    let rows_max = |src: &[f32], len: usize, n: usize| {
+        let mut out = vec![f32::NEG_INFINITY; src.len()];
+        out.par_chunks_mut(len).enumerate().for_each(|(row, o)| {
+            let (outer, at) = (row / n, row % n);
+            for near in window(at, n) {
+                let start = (outer * n + near) * len;
+                for (v, &s) in o.iter_mut().zip(&src[start..start + len]) {
+                    *v = v.max(s);
+                }
+            }
+        });
+        out
+    };
+    let along_y = rows_max(&along_z, nz, ny);
+    rows_max(&along_y, ny * nz, nx)
 }
 
 #[cfg(test)]
@@ -458,19 +474,21 @@ mod faint_tests {
     fn max_filter_equals_the_brute_force_cube_maximum() {
         let dims = [7, 5, 6];
         let v = volume(dims, |i, j, k| ((i * 31 + j * 17 + k * 7) % 11) as f32);
-        let filtered = max_filter(&v.data, dims, 2);
-        for i in 0..dims[0] {
-            for j in 0..dims[1] {
-                for k in 0..dims[2] {
-                    let mut m = f32::NEG_INFINITY;
-                    for a in i.saturating_sub(2)..=(i + 2).min(dims[0] - 1) {
-                        for b in j.saturating_sub(2)..=(j + 2).min(dims[1] - 1) {
-                            for c in k.saturating_sub(2)..=(k + 2).min(dims[2] - 1) {
-                                m = m.max(v.data[v.grid.index(a, b, c)]);
+        for r in [0, 1, 2, 9] {
+            let filtered = max_filter(&v.data, dims, r);
+            for i in 0..dims[0] {
+                for j in 0..dims[1] {
+                    for k in 0..dims[2] {
+                        let mut m = f32::NEG_INFINITY;
+                        for a in i.saturating_sub(r)..=(i + r).min(dims[0] - 1) {
+                            for b in j.saturating_sub(r)..=(j + r).min(dims[1] - 1) {
+                                for c in k.saturating_sub(r)..=(k + r).min(dims[2] - 1) {
+                                    m = m.max(v.data[v.grid.index(a, b, c)]);
+                                }
                             }
                         }
+                        assert_eq!(filtered[v.grid.index(i, j, k)], m, "voxel {i} {j} {k}, radius {r}");
                     }
-                    assert_eq!(filtered[v.grid.index(i, j, k)], m, "voxel {i} {j} {k}");
                 }
             }
         }
