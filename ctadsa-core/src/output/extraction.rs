@@ -54,21 +54,9 @@ fn dice(a: &[bool], b: &[bool]) -> f64 {
     if na + nb == 0 { 1.0 } else { 2.0 * both as f64 / (na + nb) as f64 }
 }
 
-/// Scores every candidate level: the solid `density ≥ level` (joined with `keep`, e.g. the
-/// prior's voxels, when given) is projected into the views and compared with their vessel masks
-/// (`mask_threshold` as the N2 seeds). Returns one score per candidate level, in order.
-pub fn score_levels(
-    volume: &Volume<f32>,
-    views: &[ConeBeamView],
-    images: &[Image],
-    mask_threshold: f64,
-    keep: Option<&Volume<u8>>,
-) -> Vec<LevelScore> {
-    LevelReach::new(volume, views, keep).scores(images, mask_threshold)
-}
-
-/// What the views see of the completed solid at every level at once: per view and pixel, the
-/// highest density its ray crosses (`+∞` where it crosses `keep`). The silhouette of the solid
+/// What the views see of the completed solid (`density ≥ level`, joined with `keep`, e.g. the
+/// prior's voxels) at every level at once: per view and pixel, the highest density its ray
+/// crosses (`+∞` where it crosses `keep`). The silhouette of the solid
 /// `density ≥ level` (joined with `keep`) is `reach ≥ level`, so one maximum-value projection
 /// replaces one projection per candidate level.
 #[derive(Debug, Clone)]
@@ -292,9 +280,7 @@ mod tests {
     /// The slow, obvious score of each level: its solid voxelised, projected exactly (line
     /// integrals), the pixels with a positive integral compared with the mask.
     fn score_levels_one_projection_each(
-        volume: &Volume<f32>,
-        views: &[ConeBeamView],
-        images: &[Image],
+        (volume, views, images): (&Volume<f32>, &[ConeBeamView], &[Image]),
         mask_threshold: f64,
         keep: Option<&Volume<u8>>,
     ) -> Vec<LevelScore> {
@@ -349,8 +335,8 @@ mod tests {
             .map(|data| Image { width: 56, height: 56, data })
             .collect();
         for keep in [None, Some(&solid)] {
-            let fast = score_levels(&density, &views, &images, 0.1, keep);
-            let slow = score_levels_one_projection_each(&density, &views, &images, 0.1, keep);
+            let fast = LevelReach::new(&density, &views, keep).scores(&images, 0.1);
+            let slow = score_levels_one_projection_each((&density, &views, &images), 0.1, keep);
             assert_eq!(fast, slow, "keep: {}", keep.is_some());
             let dice: Vec<f64> = fast.iter().map(|s| s.dice).collect();
             assert!(dice.iter().any(|&d| d != dice[0]), "the levels differ: {dice:?}");
