@@ -99,6 +99,15 @@ fn optional<T>(path: &Path, left_out: &mut Vec<String>, read: impl FnOnce(&Path)
 /// in [`WrittenReport::left_out`].
 pub fn write_report(run_dir: &Path) -> Result<WrittenReport> {
     let summary_path = run_dir.join("summary.json");
+    if !summary_path.exists() {
+        let what = if run_dir.is_dir() { "is not a finished run folder" } else { "does not exist" };
+        return Err(CoreError::format(
+            run_dir,
+            format!(
+                "{what}: no summary.json (every finished `ctadsa complete` writes one; resume an unfinished run with --resume)"
+            ),
+        ));
+    }
     let summary: Value = serde_json::from_slice(&read_file(&summary_path)?)
         .map_err(|e| CoreError::format(&summary_path, format!("invalid run summary: {e}")))?;
     let mut left_out = Vec::new();
@@ -515,6 +524,12 @@ mod tests {
         assert!(written.left_out[0].contains("mesh.obj"), "{:?}", written.left_out);
         let page = std::fs::read_to_string(&written.path).unwrap();
         assert!(page.contains("Left out of this page") && page.contains("mesh.obj"));
+        // A folder without a summary (a run still going, a case folder) and a missing folder.
+        std::fs::remove_file(dir.join("summary.json")).unwrap();
+        let err = write_report(&dir).unwrap_err().to_string();
+        assert!(err.contains("is not a finished run folder") && err.contains(dir.to_str().unwrap()), "{err}");
+        let err = write_report(&dir.join("nowhere")).unwrap_err().to_string();
+        assert!(err.contains("does not exist") && err.contains("nowhere"), "{err}");
         std::fs::remove_dir_all(&dir).ok();
     }
 }
