@@ -56,9 +56,8 @@ fn dice(a: &[bool], b: &[bool]) -> f64 {
 
 /// What the views see of the completed solid (`density ≥ level`, joined with `keep`, e.g. the
 /// prior's voxels) at every level at once: per view and pixel, the highest density its ray
-/// crosses (`+∞` where it crosses `keep`). The silhouette of the solid
-/// `density ≥ level` (joined with `keep`) is `reach ≥ level`, so one maximum-value projection
-/// replaces one projection per candidate level.
+/// crosses (`+∞` where it crosses `keep`). A level's silhouette is `reach ≥ level`, so one
+/// maximum-value projection replaces one projection per candidate level.
 #[derive(Debug, Clone)]
 pub struct LevelReach {
     /// [`density_scale`] of the volume (candidate levels are fractions of it).
@@ -280,7 +279,9 @@ mod tests {
     /// The slow, obvious score of each level: its solid voxelised, projected exactly (line
     /// integrals), the pixels with a positive integral compared with the mask.
     fn score_levels_one_projection_each(
-        (volume, views, images): (&Volume<f32>, &[ConeBeamView], &[Image]),
+        volume: &Volume<f32>,
+        views: &[ConeBeamView],
+        images: &[Image],
         mask_threshold: f64,
         keep: Option<&Volume<u8>>,
     ) -> Vec<LevelScore> {
@@ -308,13 +309,12 @@ mod tests {
         use ctadsa_render::TigreGeometry;
         // Densities spread over three decades, so that every candidate level cuts a different
         // solid; the views see the 40 mm scene on 56 × 56 px of 1 mm.
+        use rand::{RngExt, SeedableRng};
         let (mut density, solid) = scene(0.3);
-        let mut state = 12345u64;
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(12345);
         for (i, d) in density.data.iter_mut().enumerate() {
-            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            let r = (state >> 33) as f64 / (1u64 << 31) as f64;
             if *d > 0.0 || i % 7 == 0 {
-                *d = (10f64.powf(-3.0 * r)) as f32;
+                *d = 10f32.powf(-3.0 * rng.random_range(0.0f32..1.0));
             }
         }
         let views: Vec<ConeBeamView> = [0.0, 90.0, 35.0]
@@ -336,7 +336,7 @@ mod tests {
             .collect();
         for keep in [None, Some(&solid)] {
             let fast = LevelReach::new(&density, &views, keep).scores(&images, 0.1);
-            let slow = score_levels_one_projection_each((&density, &views, &images), 0.1, keep);
+            let slow = score_levels_one_projection_each(&density, &views, &images, 0.1, keep);
             assert_eq!(fast, slow, "keep: {}", keep.is_some());
             let dice: Vec<f64> = fast.iter().map(|s| s.dice).collect();
             assert!(dice.iter().any(|&d| d != dice[0]), "the levels differ: {dice:?}");
