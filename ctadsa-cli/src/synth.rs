@@ -192,7 +192,7 @@ pub fn run(args: SynthArgs) -> Result<()> {
         let p = ProceduralTree { seed: args.seed, terminals: args.terminals, ..Default::default() };
         jobs.push((Anatomy::Procedural(p), format!("procedural-seed{}", args.seed), args.out.clone()));
     }
-    let steps = ["anatomy", "meshes", "projections", "files"];
+    let steps = ["anatomy", "projections", "meshes", "files"];
     let pb = bar((jobs.len() * steps.len()) as u64, "synth");
     for (anatomy, name, out) in jobs {
         let cfg = config_from(&args, anatomy, name.clone())?;

@@ -150,6 +150,39 @@ fn out_of_range_flags_are_refused_naming_the_flag() {
     }
     // Checked before any file is read or scored.
     refused(&dir, &["eval", "--pred", "a.obj", "--gt", "b.obj", "--topology-voxel-mm", "0"], &["--topology-voxel-mm"]);
+    // An island threshold above every component left nothing to score (it printed inf and NaN).
+    std::fs::write(dir.join("tri.obj"), "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
+    refused(
+        &dir,
+        &["eval", "--pred", "tri.obj", "--gt", "tri.obj", "--min-island-mm2", "1e9"],
+        &["tri.obj", "min_island_mm2"],
+    );
+}
+
+#[test]
+fn trees_outside_the_views_are_refused_and_cut_offs_named() {
+    let dir = sandbox("field-of-view");
+    let base = ["synth", "--out", "out/c", "--terminals", "8", "--detector-px", "128"];
+    // Moved off every detector (or lost to f64 precision), or imaged with a pose error that does.
+    for extra in [
+        &["--translate-mm", "300", "0", "0"][..],
+        &["--translate-mm", "1e30", "0", "0"][..],
+        &["--pose-error-mm", "1e9"][..],
+    ] {
+        let args: Vec<&str> = base.iter().chain(extra).copied().collect();
+        refused(&dir, &args, &["view `", "no vessel projects onto its detector"]);
+        assert!(!dir.join("out/c").exists(), "`ctadsa {}` wrote a case of empty views", args.join(" "));
+    }
+    // Partly off: written, with the share cut off named per view.
+    let args: Vec<&str> = base.iter().chain(&["--translate-mm", "25", "0", "0"]).copied().collect();
+    let out = Command::new(BIN).current_dir(&dir).args(&args).env("RUST_BACKTRACE", "0").output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        stdout.contains("warning: view `oblique`: ") && stdout.contains("projects outside the detector"),
+        "{stdout}"
+    );
+    assert!(dir.join("out/c/case.json").is_file());
 }
 
 #[test]
@@ -555,6 +588,20 @@ fn malformed_experiment_names_do_not_escape() {
         &["experiment", "--matrix", "views.toml", "--cases", &case, "--out", "out/m", "--list"],
         &["views.toml", "[0, 5]", "it has 3"],
     );
+    // An empty view subset (a run's "all views") and a prior the case lacks: refused up front too.
+    for (file, matrix, expect) in [
+        ("empty.toml", "views = [[]]\npriors = []\n", &["empty.toml", "empty view subset"][..]),
+        ("prior.toml", "views = [[0, 1]]\npriors = [\"d9p99mm\"]\n", &["prior.toml", "no prior `d9p99mm`"][..]),
+        // A bad value from the matrix's `set` is named as an override, not as the method's file.
+        (
+            "set.toml",
+            "views = [[0, 1]]\npriors = []\nset = [\"run.iterations=-5\"]\n",
+            &["override `run.iterations=-5`"][..],
+        ),
+    ] {
+        std::fs::write(dir.join(file), format!("{matrix}[[methods]]\nname = \"m\"\nconfig = \"{config}\"\n")).unwrap();
+        refused(&dir, &["experiment", "--matrix", file, "--cases", &case, "--out", "out/m", "--list"], expect);
+    }
     // A matrix of a million cells is refused before any cell's configuration is read.
     let subsets = (0..1000).map(|i| format!("[{i}]")).collect::<Vec<_>>().join(", ");
     let methods =

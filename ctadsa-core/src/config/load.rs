@@ -87,9 +87,18 @@ impl Config {
             }
             t.insert(parts[parts.len() - 1].to_string(), parse_value(value.trim()));
         }
-        let cfg: Config = toml::Value::Table(table)
-            .try_into()
-            .map_err(|e: toml::de::Error| CoreError::Format { path: name.into(), problem: format!("{e}") })?;
+        let cfg: Config = toml::Value::Table(table).try_into().map_err(|e: toml::de::Error| {
+            let problem = e.to_string();
+            // A bad value an override set is the override's fault, not the file's.
+            let by_override = overrides
+                .iter()
+                .rev()
+                .find(|o| o.split_once('=').is_some_and(|(key, _)| problem.contains(&format!("in `{}`", key.trim()))));
+            match by_override {
+                Some(o) => CoreError::invalid(format!("override `{o}`: {}", problem.trim_end())),
+                None => CoreError::Format { path: name.into(), problem },
+            }
+        })?;
         cfg.validate()?;
         Ok(cfg)
     }

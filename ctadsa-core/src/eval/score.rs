@@ -117,6 +117,12 @@ pub fn evaluate_files(
     let mut pred = read_mesh(pred_path)?;
     if o.min_island_mm2 > 0.0 {
         pred = pred.without_islands_below(o.min_island_mm2).0;
+        if pred.is_empty() {
+            return Err(CoreError::format(
+                pred_path,
+                format!("every connected component has less surface than min_island_mm2 = {} mm²", o.min_island_mm2),
+            ));
+        }
     }
     let gt = read_mesh(gt_path)?;
     check_same_frame(pred_path, &pred, &gt, gt_path)?;

@@ -216,6 +216,12 @@ impl Experiment {
                 "{cells} cells (cases × priors × view subsets × methods); a matrix has at most {MAX_CELLS}"
             )));
         }
+        if matrix.views.iter().any(|v| v.is_empty()) {
+            return Err(bad(
+                "an empty view subset: list the views each cell uses (e.g. [0, 1] or [0, 1, 2]); the tables compare view counts"
+                    .into(),
+            ));
+        }
         if let Some(v) = matrix.views.iter().find(|v| v.len() > MAX_VIEWS) {
             return Err(bad(format!("a view subset of {} views; a case has at most {MAX_VIEWS}", v.len())));
         }
@@ -276,6 +282,16 @@ impl Experiment {
             {
                 return Err(bad(format!(
                     "the view subset {v:?} names a view that case `{case_name}` lacks (it has {n})"
+                )));
+            }
+            // So is a prior the case was not synthesised with.
+            if let Some(p) = matrix.priors.iter().find(|p| {
+                case_dir.join(CASE_FILE).is_file() && !case_dir.join("priors").join(p).join("prior.obj").is_file()
+            }) {
+                return Err(bad(format!(
+                    "case `{case_name}` has no prior `{p}` ({} does not exist; `ctadsa synth --prior-diameter` makes one \
+                     per threshold)",
+                    case_dir.join("priors").join(p).join("prior.obj").display()
                 )));
             }
             for prior in &priors {

@@ -297,7 +297,15 @@ impl CaseFile {
         let b = file.volume.bounds();
         let finite = b.min_mm.iter().chain(&b.max_mm).all(|v| v.is_finite());
         if !finite || !(0..3).all(|a| b.max_mm[a] > b.min_mm[a]) || !(file.volume.voxel_mm > 0.0) {
-            return Err(CoreError::format(path, format!("degenerate working volume {:?}", file.volume)));
+            let v = &file.volume;
+            return Err(CoreError::format(
+                path,
+                format!(
+                    "`volume`: min_mm {:?} to max_mm {:?} at voxel_mm {} is not a box (each max must exceed its min, \
+                     all finite, the voxel size positive)",
+                    v.min_mm, v.max_mm, v.voxel_mm
+                ),
+            ));
         }
         Grid::covering(&b, file.volume.voxel_mm)
             .map_err(|e| CoreError::format(path, format!("`volume.voxel_mm` {}: {e}", file.volume.voxel_mm)))?;

@@ -428,6 +428,8 @@ struct Acquisition {
     images: Vec<Vec<f32>>,
     normalised_by: Option<f64>,
     view_corrections: Option<Vec<PoseCorrection>>,
+    /// Views that see only part of the vessels.
+    warnings: Vec<String>,
 }
 
 fn acquire(cfg: &SynthConfig, complete: &Volume<f32>) -> Result<Acquisition> {
@@ -458,6 +460,23 @@ fn acquire(cfg: &SynthConfig, complete: &Volume<f32>) -> Result<Acquisition> {
         None => views,
         Some(c) => views.iter().zip(c).map(|(v, c)| corrected_view(v, c)).collect::<std::result::Result<_, _>>()?,
     };
+    let mut warnings = Vec::new();
+    for (name, view) in angles.iter().map(|(name, _, _)| name).zip(&imaged) {
+        // An empty volume is named by the meshes' own check.
+        let Some(on) = share_on_detector(complete, view) else { continue };
+        if on <= 0.0 {
+            return Err(CoreError::invalid(format!(
+                "view `{name}`: no vessel projects onto its detector (the tree lies outside the view's field of view; \
+                 check --translate-mm, --pose-error-mm, --views and the detector size)"
+            )));
+        }
+        if on < 0.999 {
+            warnings.push(format!(
+                "view `{name}`: {:.1} % of the vessel volume projects outside the detector (cut off in this view)",
+                100.0 * (1.0 - on)
+            ));
+        }
+    }
     let mut images = project_volume(&contrast, &imaged);
     for (i, img) in images.iter_mut().enumerate() {
         cfg.noise.apply(img, i as u64);
@@ -468,7 +487,31 @@ fn acquire(cfg: &SynthConfig, complete: &Volume<f32>) -> Result<Acquisition> {
         images.iter_mut().for_each(|img| img.iter_mut().for_each(|v| *v /= m as f32));
     }
     let names = angles.into_iter().map(|(name, _, _)| name).collect();
-    Ok(Acquisition { names, geometries, images, normalised_by, view_corrections })
+    Ok(Acquisition { names, geometries, images, normalised_by, view_corrections, warnings })
+}
+
+/// The share (0–1) of `occupancy`'s total that projects onto `view`'s detector, each voxel
+/// counted at its centre; `None` when the volume is empty.
+fn share_on_detector(occupancy: &Volume<f32>, view: &ConeBeamView) -> Option<f64> {
+    let (w, h) = (view.width() as f64, view.height() as f64);
+    let [nx, ny, nz] = occupancy.grid.dims;
+    let (mut on, mut total) = (0.0f64, 0.0f64);
+    for i in 0..nx {
+        for j in 0..ny {
+            for k in 0..nz {
+                let v = occupancy.get(i, j, k) as f64;
+                if v <= 0.0 {
+                    continue;
+                }
+                total += v;
+                let p = occupancy.index_to_world.transform_point3(DVec3::new(i as f64, j as f64, k as f64));
+                if view.project(p).is_some_and(|uv| (0.0..w).contains(&uv.x) && (0.0..h).contains(&uv.y)) {
+                    on += v;
+                }
+            }
+        }
+    }
+    (total > 0.0).then(|| on / total)
 }
 
 /// Writes every view (TIFF, 16-bit PNG, preview) and the pictures; returns the case's entries.
@@ -508,11 +551,12 @@ pub fn synthesize(cfg: &SynthConfig, out: &Path, progress: &mut dyn FnMut(&str))
     progress("anatomy");
     let r = rasterise_anatomy(cfg)?;
     let grid = r.complete.grid;
+    progress("projections");
+    let mut acq = acquire(cfg, &r.complete)?;
+    let (normalised_by, view_corrections, n_views) = (acq.normalised_by, acq.view_corrections.clone(), acq.names.len());
+    let view_warnings = std::mem::take(&mut acq.warnings);
     progress("meshes");
     let WrittenPriors { entries: prior_entries, prior_mesh, missing_mesh } = write_truth_and_priors(&r, out)?;
-    progress("projections");
-    let acq = acquire(cfg, &r.complete)?;
-    let (normalised_by, view_corrections, n_views) = (acq.normalised_by, acq.view_corrections.clone(), acq.names.len());
     progress("files");
     let entries = write_views(out, acq, &prior_mesh, &missing_mesh)?;
     let (d0, tag0) = &prior_entries[0];
@@ -569,7 +613,7 @@ pub fn synthesize(cfg: &SynthConfig, out: &Path, progress: &mut dyn FnMut(&str))
         prior_thresholds_mm: prior_entries.iter().map(|p| p.0).collect(),
         complete_volume_mm3: occupancy_volume_mm3(&r.complete),
         prior_volume_mm3: occupancy_volume_mm3(&r.priors[0].1),
-        warnings: r.warnings,
+        warnings: r.warnings.into_iter().chain(view_warnings).collect(),
     })
 }
 
