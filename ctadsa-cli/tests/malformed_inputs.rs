@@ -186,6 +186,38 @@ fn trees_outside_the_views_are_refused_and_cut_offs_named() {
 }
 
 #[test]
+fn runs_and_checkpoints_that_are_not_there_are_named_once() {
+    let dir = sandbox("not-there");
+    let case = valid_case().to_str().unwrap().to_string();
+    std::fs::create_dir_all(dir.join("half")).unwrap();
+    for (args, expect) in [
+        (vec!["diagnose", "--case", &case, "--run", "half"], "half: is not a finished run folder"),
+        (vec!["diagnose", "--case", &case, "--run", "nowhere"], "nowhere: does not exist"),
+        (vec!["report", "half"], "half: is not a finished run folder"),
+        (
+            vec!["complete", "--case", &case, "--out", "out/r", "--resume", "ckpt-404"],
+            "checkpoint `ckpt-404` does not exist",
+        ),
+    ] {
+        refused(&dir, &args, &[expect]);
+        // The OS's reason, where one is given, is said once (not again as a cause).
+        let out = Command::new(BIN).current_dir(&dir).args(&args).env("RUST_BACKTRACE", "0").output().unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(stderr.matches("No such file or directory").count() <= 1, "{stderr}");
+    }
+    // A missing input file: named with the OS's reason, once.
+    let out = Command::new(BIN)
+        .current_dir(&dir)
+        .args(["eval", "--pred", "absent.obj", "--gt", "absent.obj"])
+        .env("RUST_BACKTRACE", "0")
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("absent.obj: No such file or directory"), "{stderr}");
+    assert_eq!(stderr.matches("No such file or directory").count(), 1, "{stderr}");
+}
+
+#[test]
 fn out_of_range_config_values_are_refused_naming_the_key() {
     let dir = sandbox("config");
     let case = valid_case().to_str().unwrap().to_string();

@@ -6,13 +6,10 @@ use std::path::{Path, PathBuf};
 /// An error of the core library.
 #[derive(Debug, thiserror::Error)]
 pub enum CoreError {
-    /// Reading or writing a file failed at the OS level.
-    #[error("{path}: {source}")]
-    Io {
-        path: PathBuf,
-        #[source]
-        source: std::io::Error,
-    },
+    /// Reading or writing a file failed at the OS level. The message carries the OS's reason
+    /// (`error` is not also the error's `source()`, so that a chain of causes says it once).
+    #[error("{path}: {error}")]
+    Io { path: PathBuf, error: std::io::Error },
     /// A file was read but its content is not what it should be.
     #[error("{path}: {problem}")]
     Format { path: PathBuf, problem: String },
@@ -30,7 +27,7 @@ pub enum CoreError {
 impl CoreError {
     /// An I/O error on `path`.
     pub fn io(path: &Path, source: std::io::Error) -> Self {
-        Self::Io { path: path.to_path_buf(), source }
+        Self::Io { path: path.to_path_buf(), error: source }
     }
 
     /// A content error in `path`.

@@ -29,11 +29,12 @@ use crate::data::case::images::Image;
 use crate::data::masks::{Mask, prior_solid, silhouettes, vessel_mask};
 use crate::data::mesh::distance::SurfaceIndex;
 use crate::data::mesh::io::read_mesh;
+use crate::data::run_folder::read_run_summary;
 use crate::data::tree::Segment;
 use crate::data::volume::Grid;
 use crate::data::volume::Volume;
 use crate::data::volume::nifti_io::read_nifti;
-use crate::error::{CoreError, Result, read_file};
+use crate::error::{CoreError, Result};
 use crate::eval::metrics::nearest_distances;
 use crate::eval::new_surface::{NewSurface, new_surface};
 use crate::eval::score::CaseTruth;
@@ -396,8 +397,7 @@ pub fn diagnose_seeds(case: &Case, cfg: &Config) -> Result<SeedCoverage> {
 /// have a tree.
 pub fn diagnose_run(case: &Case, run_dir: &Path) -> Result<Diagnosis> {
     let summary_path = run_dir.join("summary.json");
-    let summary: serde_json::Value = serde_json::from_slice(&read_file(&summary_path)?)
-        .map_err(|e| CoreError::format(&summary_path, format!("invalid run summary: {e}")))?;
+    let summary = read_run_summary(run_dir)?;
     // Another case's truth would classify the run's vessels silently wrong (summaries written
     // before 2026-11-30 carry no fingerprint).
     if let Some(made_on) = summary["case_fingerprint"].as_str()

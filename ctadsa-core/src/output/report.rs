@@ -13,6 +13,7 @@ use crate::data::case::{CASE_FILE, CaseFile, ViewGeometry};
 use crate::data::mesh::TriMesh;
 use crate::data::mesh::io::read_mesh;
 use crate::data::mesh::split::split_by_distance;
+use crate::data::run_folder::read_run_summary;
 use crate::error::{CoreError, Result, read_file, write_file};
 use crate::eval::metrics::nearest_points;
 use crate::output::confidence::{
@@ -98,18 +99,7 @@ fn optional<T>(path: &Path, left_out: &mut Vec<String>, read: impl FnOnce(&Path)
 /// other piece is shown when present, and one present but unreadable is named on the page and
 /// in [`WrittenReport::left_out`].
 pub fn write_report(run_dir: &Path) -> Result<WrittenReport> {
-    let summary_path = run_dir.join("summary.json");
-    if !summary_path.exists() {
-        let what = if run_dir.is_dir() { "is not a finished run folder" } else { "does not exist" };
-        return Err(CoreError::format(
-            run_dir,
-            format!(
-                "{what}: no summary.json (every finished `ctadsa complete` writes one; resume an unfinished run with --resume)"
-            ),
-        ));
-    }
-    let summary: Value = serde_json::from_slice(&read_file(&summary_path)?)
-        .map_err(|e| CoreError::format(&summary_path, format!("invalid run summary: {e}")))?;
+    let summary: Value = read_run_summary(run_dir)?;
     let mut left_out = Vec::new();
     let case_dir = summary["case_dir"].as_str().map(PathBuf::from);
     let case: Option<CaseFile> = case_dir.as_ref().and_then(|d| {

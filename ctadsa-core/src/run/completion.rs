@@ -173,6 +173,14 @@ pub fn start_trainer(
             })
         }
         Start::Resume(path) => {
+            if !Path::new(path).is_dir() {
+                return Err(CoreError::invalid(format!(
+                    "checkpoint `{path}` {}: pass a checkpoint folder (as `{}/ckpt-…`), or --resume alone for the \
+                     newest one in the output folder",
+                    if Path::new(path).exists() { "is not a folder" } else { "does not exist" },
+                    ck_dir.display()
+                )));
+            }
             monitor.note(&format!("resuming from {path}"));
             Trainer::resume(case, cfg.clone(), device, Path::new(path))
         }
