@@ -12,7 +12,7 @@ use ctadsa_core::data::clinical::prior::{LabelPriorOptions, Visibility, centred_
 use ctadsa_core::data::clinical::simulate::simulated_case_runs;
 use ctadsa_core::data::clinical::xa::{read_xa_run, write_xa_run};
 use ctadsa_core::data::mesh::TriMesh;
-use ctadsa_core::data::mesh::io::{read_mesh, write_mesh};
+use ctadsa_core::data::mesh::io::{MeshFormat, read_mesh, write_mesh};
 use ctadsa_render::ConeBeamView;
 
 /// Options shared by both commands for making the prior from a label volume.
@@ -45,9 +45,16 @@ fn visibility(text: &str) -> Result<Visibility> {
     })
 }
 
+/// The largest shift (mm) `--prior-shift-mm` takes per axis: 10 m, far past any registration
+/// of a head CTA to a C-arm's isocentre.
+const MAX_PRIOR_SHIFT_MM: f64 = 10_000.0;
+
 /// Builds the prior mesh from a label volume as the options say.
 fn label_prior(labels: &Path, a: &LabelArgs, views: &[ConeBeamView]) -> Result<(TriMesh, String)> {
     let shift = match &a.prior_shift_mm {
+        Some(v) if v.len() == 3 && v.iter().any(|s| s.is_nan() || s.abs() > MAX_PRIOR_SHIFT_MM) => {
+            bail!("--prior-shift-mm {v:?}: each component must be within ±{MAX_PRIOR_SHIFT_MM} mm")
+        }
         Some(v) if v.len() == 3 => [v[0], v[1], v[2]],
         Some(v) => bail!("--prior-shift-mm needs 3 values, got {}", v.len()),
         None => [0.0; 3],
@@ -216,6 +223,8 @@ pub struct PriorArgs {
 }
 
 pub fn prior(args: PriorArgs) -> Result<()> {
+    // Before any work: the mesh format comes from the output's extension.
+    MeshFormat::from_path(&args.out)?;
     let views = match &args.case {
         Some(dir) => Case::load(dir)?.views.views().to_vec(),
         None => Vec::new(),

@@ -532,6 +532,22 @@ fn malformed_nifti_volumes_are_refused_naming_the_field() {
     let case = valid_case().to_str().unwrap().to_string();
     let args = ["prior", "--labels", "cube.nii", "--case", &case, "--visible", "all", "--out", "out/prior.obj"];
     refused(&dir, &[&args[..], &["--prior-shift-mm", "300", "300", "0"]].concat(), &["cube.nii", "world coordinates"]);
+    // Without --case there is nothing to check a shift against: a shift past 10 m is refused
+    // (1e300 wrote a mesh of 1e300 mm coordinates), and the mesh format before any work.
+    refused(
+        &dir,
+        &["prior", "--labels", "cube.nii", "--out", "out/prior.obj", "--prior-shift-mm", "1e300", "0", "0"],
+        &["--prior-shift-mm", "10000 mm"],
+    );
+    refused(&dir, &["prior", "--labels", "cube.nii", "--out", "out/prior.txt"], &["out/prior.txt", "extension"]);
+    // A simulated DSA run whose darkest pixels would fall to a few 16-bit counts, or no contrast.
+    for peak in ["0", "1e30"] {
+        refused(
+            &dir,
+            &["export-dicom", "--case", &case, "--out", "out/xa", "--peak-attenuation", peak],
+            &["peak attenuation", "(0, 5]"],
+        );
+    }
 }
 
 /// Replaces the value of an explicit-VR little-endian element `(group, element)` of 2-byte

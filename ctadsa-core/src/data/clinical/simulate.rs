@@ -35,12 +35,22 @@ pub fn simulated_frames(line_integral: &Image, kappa: f32, mirror: bool) -> Vec<
         .collect()
 }
 
+/// The largest peak attenuation (κ × the largest line integral) [`simulated_case_runs`] takes.
+pub const MAX_PEAK_ATTENUATION: f32 = 5.0;
+
 /// Simulated DSA runs of every view of a case (TIGRE geometry without detector offsets), one
 /// study per case and one series per view, with the contrast's peak attenuation
 /// `peak_attenuation` (κ × the largest line integral). `mirror_first` stores the first (frontal)
 /// run mirrored with Patient Orientation `L\F`, as a viewer facing the patient sees it. Returns
 /// `(view name, run)` pairs for [`super::xa::write_xa_run`].
 pub fn simulated_case_runs(case: &Case, peak_attenuation: f32, mirror_first: bool) -> Result<Vec<(String, XaRunSpec)>> {
+    // The background is 14,000–26,000 counts: past e^-5 its darkest pixels keep under 100 of the
+    // 16-bit counts and a log subtraction loses the vessel there.
+    if !(peak_attenuation > 0.0 && peak_attenuation <= MAX_PEAK_ATTENUATION) {
+        return Err(CoreError::invalid(format!(
+            "peak attenuation must be in (0, {MAX_PEAK_ATTENUATION}], got {peak_attenuation}"
+        )));
+    }
     let max = case.images.iter().map(|i| i.max()).fold(0.0f32, f32::max);
     if !(max > 0.0) {
         return Err(CoreError::format(&case.dir, "every image is 0: nothing to simulate"));
