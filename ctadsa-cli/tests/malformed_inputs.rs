@@ -610,6 +610,16 @@ fn malformed_dicom_runs_are_refused_naming_the_tag() {
         &["beside.obj", "world coordinates"],
     );
     assert!(!dir.join("out/case").exists(), "a case was written with a prior outside the views");
+    // One run given twice (one direction twice), and a working volume too large: refused before
+    // anything is written.
+    for (args, expect) in [
+        (&["--run", "ok.dcm", "--run", "ok.dcm"][..], "have the same geometry"),
+        (&["--run", "ok.dcm", "--voxel-mm", "1e-4"][..], "raise the voxel size"),
+    ] {
+        let all: Vec<&str> = ["import-dsa", "--out", "out/case"].iter().chain(args).copied().collect();
+        refused(&dir, &all, &[expect]);
+        assert!(!dir.join("out/case").exists(), "`ctadsa {}` wrote a case that would not load", all.join(" "));
+    }
 }
 
 #[test]

@@ -252,6 +252,14 @@ impl CaseFile {
     pub fn parse(text: &str, path: &Path) -> Result<Self> {
         let file: CaseFile =
             serde_json::from_str(text).map_err(|e| CoreError::format(path, format!("invalid case file: {e}")))?;
+        file.validate(path)?;
+        Ok(file)
+    }
+
+    /// The checks of [`CaseFile::parse`] (`path` is for messages): also for a case about to be
+    /// written, so that nothing is written for one that would not load.
+    pub fn validate(&self, path: &Path) -> Result<()> {
+        let file = self;
         if file.format != CASE_FORMAT {
             return Err(CoreError::format(path, format!("`format` is `{}`, expected `{CASE_FORMAT}`", file.format)));
         }
@@ -284,6 +292,16 @@ impl CaseFile {
                 return Err(CoreError::format(path, format!("two views are named `{}`", v.name)));
             }
         }
+        // One direction twice adds no depth information, only weight (the same run imported
+        // twice, a view copied by hand).
+        for (i, a) in file.views.iter().enumerate() {
+            if let Some(b) = file.views[i + 1..].iter().find(|b| b.geometry == a.geometry) {
+                return Err(CoreError::format(
+                    path,
+                    format!("views `{}` and `{}` have the same geometry: one direction given twice", a.name, b.name),
+                ));
+            }
+        }
         for v in &file.views {
             if let Some(s) = v.png_scale
                 && !(s.is_finite() && s > 0.0)
@@ -309,7 +327,7 @@ impl CaseFile {
         }
         Grid::covering(&b, file.volume.voxel_mm)
             .map_err(|e| CoreError::format(path, format!("`volume.voxel_mm` {}: {e}", file.volume.voxel_mm)))?;
-        Ok(file)
+        Ok(())
     }
 
     /// Writes `case.json` into `dir`.

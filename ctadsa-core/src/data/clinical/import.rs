@@ -11,7 +11,8 @@ use super::xa::XaRun;
 use crate::data::case::images::bin_image;
 use crate::data::case::images::{Image, write_png16, write_tiff_f32};
 use crate::data::case::{
-    CASE_FORMAT, CASE_VERSION, CaseFile, ImageValues, PriorEntry, Provenance, ViewEntry, ViewGeometry, VolumeEntry,
+    CASE_FILE, CASE_FORMAT, CASE_VERSION, CaseFile, ImageValues, PriorEntry, Provenance, ViewEntry, ViewGeometry,
+    VolumeEntry,
 };
 use crate::data::mesh::TriMesh;
 use crate::data::mesh::io::write_mesh;
@@ -263,13 +264,11 @@ pub fn write_dsa_case(
     }
     let mut entries = Vec::new();
     for v in views {
-        let img = Image { data: v.image.data.iter().map(|x| x / max).collect(), ..v.image.clone() };
-        write_tiff_f32(&out.join(format!("views/{}.tiff", v.name)), &img)?;
-        let scale = write_png16(&out.join(format!("views/{}.png", v.name)), &img)?;
         entries.push(ViewEntry {
             name: v.name.clone(),
             image: format!("views/{}.tiff", v.name),
-            png_scale: Some(scale),
+            // Set when the PNG is written, below.
+            png_scale: Some(1.0),
             preview_png: Some(format!("views/{}.png", v.name)),
             geometry: ViewGeometry::from_tigre(&v.geometry),
         });
@@ -290,14 +289,12 @@ pub fn write_dsa_case(
             ([-half; 3], [half; 3])
         }
     };
-    let prior_entry = match prior {
-        Some((mesh, description)) => {
-            write_mesh(&out.join("prior/prior.obj"), mesh)?;
-            Some(PriorEntry { mesh: "prior/prior.obj".into(), description, threshold_mm: None })
-        }
-        None => None,
-    };
-    let case = CaseFile {
+    let prior_entry = prior.as_ref().map(|(_, description)| PriorEntry {
+        mesh: "prior/prior.obj".into(),
+        description: description.clone(),
+        threshold_mm: None,
+    });
+    let mut case = CaseFile {
         format: CASE_FORMAT.into(),
         version: CASE_VERSION,
         name: name.to_string(),
@@ -316,6 +313,16 @@ pub fn write_dsa_case(
         prior: prior_entry,
         ground_truth: None,
     };
+    // Nothing is written for a case that would not load.
+    case.validate(&out.join(CASE_FILE))?;
+    for (v, entry) in views.iter().zip(&mut case.views) {
+        let img = Image { data: v.image.data.iter().map(|x| x / max).collect(), ..v.image.clone() };
+        write_tiff_f32(&out.join(&entry.image), &img)?;
+        entry.png_scale = Some(write_png16(&out.join(format!("views/{}.png", v.name)), &img)?);
+    }
+    if let Some((mesh, _)) = prior {
+        write_mesh(&out.join("prior/prior.obj"), mesh)?;
+    }
     case.save(out)?;
     Ok(case)
 }
