@@ -73,6 +73,9 @@ pub struct Cell {
     /// A hash of the cell's whole configuration (method config, the matrix's and the caller's
     /// overrides, its views), as TOML.
     pub config_hash: String,
+    /// The case's [`CaseFile::fingerprint`] when the matrix was read (`None`: the case could
+    /// not be read then; its cell says why when it runs).
+    pub case_fingerprint: Option<String>,
 }
 
 impl Cell {
@@ -87,17 +90,22 @@ impl Cell {
         )
     }
 
-    /// The cell's result when it has finished with its present configuration (a readable
-    /// `cell.json` of the same [`Cell::config_hash`]).
+    /// The cell's result when it has finished with its present configuration on its present
+    /// case (a readable `cell.json` of the same [`Cell::config_hash`] and case fingerprint).
     pub fn finished(&self) -> Option<CellResult> {
         // Bounded and regular files only: a FIFO or /dev/zero in a cell folder must not hang or
         // exhaust memory (it reads as "not finished").
         let bytes = crate::error::read_file(&self.dir.join("cell.json")).ok()?;
         let result: CellResult = serde_json::from_slice(&bytes).ok()?;
-        (result.config_hash.as_deref() == Some(self.config_hash.as_str())).then_some(result)
+        let same_case = match (&result.case_fingerprint, &self.case_fingerprint) {
+            (Some(ran_on), Some(now)) => ran_on == now,
+            _ => true,
+        };
+        (result.config_hash.as_deref() == Some(self.config_hash.as_str()) && same_case).then_some(result)
     }
 
-    /// Whether a `cell.json` is there but of another configuration or unreadable (rerun when run).
+    /// Whether a `cell.json` is there but of another configuration or case, or unreadable
+    /// (rerun when run).
     pub fn stale(&self) -> bool {
         self.dir.join("cell.json").exists() && self.finished().is_none()
     }
@@ -189,10 +197,11 @@ fn cell_metrics(summary: &RunSummary) -> BTreeMap<String, Option<f64>> {
 }
 
 /// How many views the case in `dir` has, when its `case.json` can be read.
-fn case_view_count(dir: &Path) -> Option<usize> {
+/// The case file in `dir`, when it can be read.
+fn case_file(dir: &Path) -> Option<CaseFile> {
     let path = dir.join(CASE_FILE);
     let text = String::from_utf8(read_file(&path).ok()?).ok()?;
-    Some(CaseFile::parse(&text, &path).ok()?.views.len())
+    CaseFile::parse(&text, &path).ok()
 }
 
 impl Experiment {
@@ -277,7 +286,9 @@ impl Experiment {
             check_file_name(&case_name, "case folder name").map_err(CoreError::invalid)?;
             // A view the case does not have fails each of its cells: refused when the matrix is
             // read. (A case that cannot be read yet says so in its cells.)
-            if let Some(n) = case_view_count(case_dir)
+            let file = case_file(case_dir);
+            let case_fingerprint = file.as_ref().map(CaseFile::fingerprint);
+            if let Some(n) = file.as_ref().map(|f| f.views.len())
                 && let Some(v) = matrix.views.iter().find(|v| v.iter().any(|&i| i >= n))
             {
                 return Err(bad(format!(
@@ -313,6 +324,7 @@ impl Experiment {
                             prior: prior.clone(),
                             dir,
                             config_hash,
+                            case_fingerprint: case_fingerprint.clone(),
                         });
                     }
                 }
@@ -330,6 +342,7 @@ impl Experiment {
             CoreError::invalid(format!("cell {index} does not exist (the matrix has {} cells)", self.cells.len()))
         })?;
         let case = Case::load(&cell.case_dir)?;
+        let case_fingerprint = case.fingerprint();
         let case = match &cell.prior {
             Some(tag) => with_prior(&case, tag)?,
             None => case,
@@ -371,6 +384,7 @@ impl Experiment {
             gaussians: summary.gaussians,
             metrics: cell_metrics(&summary),
             config_hash: Some(cell.config_hash.clone()),
+            case_fingerprint: Some(case_fingerprint),
         };
         let path = cell.dir.join("cell.json");
         write_file(&path, to_json(&result, &path)?.as_bytes())?;
@@ -501,6 +515,44 @@ mod tests {
         }
         assert!(cell.finished().is_none(), "a FIFO is not a result");
         assert!(FolderLock::take(&cell.dir, CELL_LOCK, "the cell").is_err(), "a FIFO lock is nobody's stale lock");
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// A cell's result is its own only on the case it ran on: re-making the case (another
+    /// `synth` into the same folder) makes the finished cell stale.
+    #[test]
+    fn results_on_a_case_since_remade_are_stale() {
+        let dir = std::env::temp_dir().join(format!("ctadsa-matrix-case-{}", std::process::id()));
+        std::fs::remove_dir_all(&dir).ok();
+        let case_dir = dir.join("cases/C");
+        crate::data::synth::synthesize(&crate::data::synth::SynthConfig::small_procedural("C"), &case_dir, &mut |_| {})
+            .unwrap();
+        let config = concat!(env!("CARGO_MANIFEST_DIR"), "/../configs/quick.toml");
+        let matrix = dir.join("m.toml");
+        std::fs::write(&matrix, format!("views = [[0, 1]]\n[[methods]]\nname = \"m\"\nconfig = \"{config}\"\n"))
+            .unwrap();
+        let load = || Experiment::load(&matrix, std::slice::from_ref(&case_dir), &dir.join("out"), &[]).unwrap();
+        let cell = load().cells[0].clone();
+        // What a cell records when it runs: the fingerprint of the case as loaded.
+        let ran_on = Case::load(&case_dir).unwrap().fingerprint();
+        assert_eq!(cell.case_fingerprint.as_deref(), Some(ran_on.as_str()));
+        let mut r = result("C", "m", 2, Some(1.0));
+        r.config_hash = Some(cell.config_hash.clone());
+        r.case_fingerprint = Some(ran_on);
+        std::fs::create_dir_all(&cell.dir).unwrap();
+        std::fs::write(cell.dir.join("cell.json"), serde_json::to_string(&r).unwrap()).unwrap();
+        assert!(cell.finished().is_some() && !cell.stale());
+        // The case re-made with other settings (here: its provenance notes edited).
+        let path = case_dir.join(CASE_FILE);
+        let mut file = CaseFile::parse(&std::fs::read_to_string(&path).unwrap(), &path).unwrap();
+        file.provenance.notes.push("re-made".into());
+        file.save(&case_dir).unwrap();
+        let cell = load().cells[0].clone();
+        assert!(cell.finished().is_none() && cell.stale(), "a result on the earlier case is stale");
+        // A result of a version that recorded no case is taken as the case's.
+        r.case_fingerprint = None;
+        std::fs::write(cell.dir.join("cell.json"), serde_json::to_string(&r).unwrap()).unwrap();
+        assert!(cell.finished().is_some());
         std::fs::remove_dir_all(&dir).ok();
     }
 

@@ -25,6 +25,11 @@ pub struct CellResult {
     /// configuration (or of a version that did not record it) is not this cell's.
     #[serde(default)]
     pub config_hash: Option<String>,
+    /// The case it ran on (`CaseFile::fingerprint` of its `case.json`, before another prior
+    /// was swapped in); a result on a case since re-made is not this cell's. `None` in cells of
+    /// versions that did not record it (taken as the case's).
+    #[serde(default)]
+    pub case_fingerprint: Option<String>,
 }
 
 /// The cell columns of `results.csv` before the metrics.
@@ -165,6 +170,7 @@ pub fn parse_results_csv(text: &str, path: &Path) -> Result<Vec<CellResult>> {
             gaussians: count(7)?,
             metrics,
             config_hash: None,
+            case_fingerprint: None,
         });
     }
     Ok(results)
@@ -240,6 +246,7 @@ pub(crate) mod tests {
             gaussians: 10,
             metrics: BTreeMap::from([("roi_cd_sum_mm".to_string(), cd_roi)]),
             config_hash: None,
+            case_fingerprint: None,
         }
     }
 

@@ -330,6 +330,12 @@ impl CaseFile {
         Ok(())
     }
 
+    /// The case's name and a hash of this content ([`Case::fingerprint`]).
+    pub fn fingerprint(&self) -> String {
+        let text = serde_json::to_string(self).unwrap_or_default();
+        format!("{} {}", self.name, text_hash(&text))
+    }
+
     /// Writes `case.json` into `dir`.
     pub fn save(&self, dir: &Path) -> Result<()> {
         let text = serde_json::to_string_pretty(self).map_err(|e| CoreError::invalid(e.to_string()))?;
@@ -394,8 +400,7 @@ impl Case {
     /// what checkpoints and run summaries record, so that a run is resumed and diagnosed only on
     /// the case it was made on.
     pub fn fingerprint(&self) -> String {
-        let text = serde_json::to_string(&self.file).unwrap_or_default();
-        format!("{} {}", self.file.name, text_hash(&text))
+        self.file.fingerprint()
     }
 
     /// Path of a file named in the case, relative to the case folder.
