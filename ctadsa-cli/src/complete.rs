@@ -284,12 +284,16 @@ pub struct DemoArgs {
 }
 
 pub fn demo(args: DemoArgs) -> Result<()> {
+    // The overrides and the folder are checked before the phantom is made.
+    let cfg = Config::quick(&args.overrides)?;
+    if args.out.exists() && !args.out.is_dir() {
+        bail!("--out {}: is a file; the demo writes a folder (its case and its run)", args.out.display());
+    }
     let case_dir = args.out.join("case");
     let started = Instant::now();
     eprintln!("synthesising the built-in phantom case into {}", case_dir.display());
     synthesize(&SynthConfig::demo(), &case_dir, &mut |_| {})?;
     let case = Case::load(&case_dir)?;
-    let cfg = Config::quick(&args.overrides)?;
     let out = args.out.join("run");
     match run_completion(&case, cfg, args.backend, &out, Start::Overwrite)? {
         Some(s) => {

@@ -148,6 +148,12 @@ fn out_of_range_flags_are_refused_naming_the_flag() {
     ] {
         refused(&dir, &args, &[args[args.len() - 2]]);
     }
+    // The demo's overrides and folder: checked before the phantom is made.
+    std::fs::write(dir.join("a-file"), "mine").unwrap();
+    refused(&dir, &["demo", "--out", "out/demo", "--set", "run.iterations=abc"], &["run.iterations=abc"]);
+    assert!(!dir.join("out/demo").exists(), "the demo made its phantom before reading its overrides");
+    refused(&dir, &["demo", "--out", "a-file"], &["a-file", "is a file"]);
+    assert_eq!(std::fs::read_to_string(dir.join("a-file")).unwrap(), "mine");
     // Checked before any file is read or scored.
     refused(&dir, &["eval", "--pred", "a.obj", "--gt", "b.obj", "--topology-voxel-mm", "0"], &["--topology-voxel-mm"]);
     // An island threshold above every component left nothing to score (it printed inf and NaN).
