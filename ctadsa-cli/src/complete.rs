@@ -33,7 +33,7 @@ pub struct CompleteArgs {
     /// Override a config value: --set section.key=value (repeatable).
     #[arg(long = "set")]
     overrides: Vec<String>,
-    /// Output folder (default: runs/<case name>).
+    /// Output folder (default: `runs/<case name>`).
     #[arg(long)]
     out: Option<PathBuf>,
     /// Resume from the latest checkpoint in the output folder (or the given checkpoint).

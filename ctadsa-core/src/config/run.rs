@@ -33,7 +33,7 @@ pub struct RunConfig {
     /// adds one run's training time. At most 8, none equal to `run.seed` or to each other.
     pub member_seeds: Vec<u64>,
     /// Runs of at most this many views seed the prior-only member along the vessels tracked
-    /// from the prior as well (`init.track_*`, [`crate::method::tracking`]; its only image
+    /// from the prior as well (`init.track_*`, `method::tracking`; its only image
     /// seeds): a track follows a vessel out of the tree and rarely a ghost, so the member finds
     /// more of the missing vessels while, in the mean, the image-seeded models' ghosts still
     /// fall to half their density. 0 = the member has no image seeds.
@@ -44,7 +44,7 @@ pub struct RunConfig {
     /// and lays down false surface (docs/RESULTS.md, "`configs/paper.toml`").
     pub member_iterations: usize,
     /// Where this configuration's training stops when it is a member's: set by
-    /// [`Config::prior_only_member`] from `run.member_iterations`; `None` = `run.iterations`.
+    /// [`RunConfig::prior_only_member`] from `run.member_iterations`; `None` = `run.iterations`.
     #[serde(skip)]
     pub stop_after: Option<usize>,
 }

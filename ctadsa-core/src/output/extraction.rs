@@ -368,7 +368,7 @@ fn lower_level_near_prior(
 /// What a surface is cut from, and at which level: `density` at `level`, or — with the faint
 /// vessels' field (`faint`, [`faint_level_field`]) or a lower level beside the prior (`near`:
 /// the prior's solid on the density's grid, the lower level, the distance in mm;
-/// [`lower_level_near_prior`], applied only where it is lower than `level`) — the density over
+/// `lower_level_near_prior`, applied only where it is lower than `level`) — the density over
 /// its local level, at 1. The surface and the centreline's finer solid are cut alike.
 pub fn level_field(
     density: &Volume<f32>,

@@ -21,7 +21,7 @@ pub struct CellResult {
     pub seconds: f64,
     pub gaussians: usize,
     pub metrics: BTreeMap<String, Option<f64>>,
-    /// The cell's configuration when it ran ([`Cell::config_hash`]); a result of another
+    /// The cell's configuration when it ran ([`crate::run::experiment::Cell::config_hash`]); a result of another
     /// configuration (or of a version that did not record it) is not this cell's.
     #[serde(default)]
     pub config_hash: Option<String>,

@@ -151,7 +151,7 @@ pub fn forward(x: &[f32], w: &[f32], b: &[f32], n: usize, act: Activation) -> Ve
 }
 
 /// What one task of [`backward`] sums over its rows: the weight gradient's product per
-/// [`PRODUCT_BLOCK_ROWS`] block, in block order, and the bias gradient's column sums.
+/// `PRODUCT_BLOCK_ROWS` block, in block order, and the bias gradient's column sums.
 struct BlockSums {
     weight: Vec<Vec<f32>>,
     bias: Vec<f32>,
@@ -162,8 +162,8 @@ struct BlockSums {
 /// slope, [`Activation::gradient`]):
 /// `(∂x [n, i], ∂w [i, o], ∂b [o])`.
 ///
-/// One task per [`BIAS_BLOCK_ROWS`] rows masks the upstream gradient, sums its columns and runs
-/// the products of its [`PRODUCT_BLOCK_ROWS`] blocks, so the masked gradient stays in cache and
+/// One task per `BIAS_BLOCK_ROWS` rows masks the upstream gradient, sums its columns and runs
+/// the products of its `PRODUCT_BLOCK_ROWS` blocks, so the masked gradient stays in cache and
 /// never fills an `[n, o]` buffer. The sums are combined in block order: the same operations in
 /// the same order as separate passes over fixed blocks, and the same bits for any thread count.
 pub fn backward(

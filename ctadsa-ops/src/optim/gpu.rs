@@ -90,7 +90,7 @@ pub fn adam_update(
     AdamUpdate { param: param_out, moment_1: moment_1_out, moment_2: moment_2_out }
 }
 
-/// The op on CubeCL: [`adam_update`].
+/// The op on CubeCL: `adam_update`.
 impl FusedAdamBackend for burn_cubecl::CubeBackend {
     fn adam_update(
         param: FloatTensor<Self>,

@@ -50,7 +50,7 @@ pub fn count_pairs(g: &HostGaussians, views: &[ViewParams], k_sigma: f32) -> u64
 }
 
 /// Number of pixel lanes the forward kernel evaluates (footprint boxes, rows rounded up to
-/// whole [`LANES`]-pixel chunks, row pairs of narrow footprints sharing one), for throughput
+/// whole `LANES`-pixel chunks, row pairs of narrow footprints sharing one), for throughput
 /// figures: the ratio to [`count_pairs`] is the share of the vector work spent outside
 /// footprints.
 pub fn count_lanes(g: &HostGaussians, views: &[ViewParams], k_sigma: f32) -> u64 {

@@ -7,7 +7,7 @@
 //! A kernel that adds atomically takes its accumulator twice, typed `Tensor<Atomic<f32>>` and
 //! `Tensor<Atomic<u32>>`, and a comptime flag that says which one is real (the other is a
 //! one-element placeholder); [`add_f32`] adds through the one the flag names, and the launcher
-//! picks the flag with [`launches_native`] and the arguments with [`Accumulator`].
+//! picks the flag with `launches_native` and the arguments with [`Accumulator`].
 
 use burn_cubecl::cubecl;
 use burn_cubecl::tensor::CubeTensor;
@@ -40,7 +40,7 @@ pub struct Accumulator {
 
 impl Accumulator {
     /// `target` (f32, zero-initialised or holding the sums to add to) bound for the variant
-    /// [`launches_native`] picks on its device.
+    /// `launches_native` picks on its device.
     pub fn new(target: &CubeTensor, requested: F32Add) -> Self {
         use burn::backend::ops::FloatTensorOps;
         use burn::backend::{FloatDType, Shape};

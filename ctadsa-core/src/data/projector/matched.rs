@@ -73,14 +73,14 @@ pub struct MatchedChords {
 
 /// Of the blurs in `sigmas_px`, the one whose blurred `chords` × their fitted contrast leave the
 /// smallest absolute residual of `image` over the solid's footprint (where the widest blur
-/// reaches [`FOOTPRINT_MM`]). The absolute residual, not its square: the vessels the solid lacks
+/// reaches `FOOTPRINT_MM`). The absolute residual, not its square: the vessels the solid lacks
 /// lie on that footprint too and must not pull the fit. Ties go to the sharper blur.
 pub fn fit_blur(image: &Image, chords: &[f32], sigmas_px: &[f64]) -> MatchedChords {
     let widest = sigmas_px.iter().copied().fold(0.0, f64::max);
     fit_blur_on(image, chords, sigmas_px, &footprint(chords, image.width as usize, widest))
 }
 
-/// Pixels where `chords` blurred by `sigma_px` exceed [`FOOTPRINT_MM`].
+/// Pixels where `chords` blurred by `sigma_px` exceed `FOOTPRINT_MM`.
 fn footprint(chords: &[f32], width: usize, sigma_px: f64) -> Vec<usize> {
     gaussian_blurred(chords, width, sigma_px)
         .iter()

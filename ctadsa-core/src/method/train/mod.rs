@@ -41,7 +41,7 @@ pub use setup::{estimate_initial_density, prepare_views, run_working_box};
 ///
 /// On a GPU backend the stages from `field` to `optimizer` only queue device work and return;
 /// the device's time shows in `wait`, the step that reads the queued steps' losses back
-/// (every [`Trainer::log_every`] steps) blocking until the device has done them. On the CPU
+/// (every `Trainer::log_every` steps) blocking until the device has done them. On the CPU
 /// backends the stages do the work and `wait` is near 0. Their sum ([`StageTimes::total`]) is
 /// the step's wall time either way.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
@@ -97,7 +97,7 @@ pub struct Trainer {
     /// (`[N, 2]`: sum, visible count), started from `stats`; read back only when needed.
     device_stats: Option<Tensor<2>>,
     /// Steps whose loss values are still on the device (loss, L1, SSIM, FN, PA; `None`: a term
-    /// not computed, 0), read back together every [`Trainer::log_every`] steps.
+    /// not computed, 0), read back together every `Trainer::log_every` steps.
     pending_logs: Vec<(StepLog, [Option<Tensor<1>>; 5])>,
     /// Steps between reads of the loss values (each read waits for the device; 1 reads every
     /// step). The training itself does not depend on it.

@@ -127,7 +127,7 @@ impl Trainer {
     }
 
     /// One optimisation step; its stage times. Its loss values reach `history` when the logs
-    /// are next read (every [`Trainer::log_every`] steps, at a checkpoint, or
+    /// are next read (every `Trainer::log_every` steps, at a checkpoint, or
     /// [`Trainer::flush_logs`]); a loss that is not finite is reported then.
     pub fn step(&mut self) -> Result<StageTimes> {
         let cfg = self.cfg.clone();
@@ -239,7 +239,7 @@ impl Trainer {
     }
 
     /// The steps logged since the last call, oldest first (steps are logged every
-    /// [`Trainer::log_every`] steps and by [`Trainer::flush_logs`]).
+    /// `Trainer::log_every` steps and by [`Trainer::flush_logs`]).
     pub fn new_logs(&mut self) -> Vec<StepLog> {
         let start = self.announced.min(self.history.len());
         self.announced = self.history.len();
