@@ -28,9 +28,9 @@ pub struct ExperimentArgs {
     /// Backend of every run.
     #[arg(long, value_enum, default_value = "ndarray")]
     backend: BackendKind,
-    /// Cells run at the same time (each run already uses every core for its kernels).
-    #[arg(long, default_value_t = 1)]
-    jobs: usize,
+    /// Cells run at the same time, 1 to 256 (each run already uses every core for its kernels).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=256))]
+    jobs: u16,
     /// Overrides for every cell, after the matrix's own (repeatable).
     #[arg(long = "set")]
     overrides: Vec<String>,
@@ -78,7 +78,7 @@ pub fn run(args: ExperimentArgs) -> Result<()> {
         };
     }
     if !args.collect {
-        run_unfinished(&exp, args.backend, args.jobs)?;
+        run_unfinished(&exp, args.backend, usize::from(args.jobs))?;
     }
     let md = exp.collect()?;
     println!("\n{md}");
@@ -113,7 +113,8 @@ fn run_unfinished(exp: &Experiment, backend: BackendKind, jobs: usize) -> Result
         let queue = Mutex::new(todo.into_iter());
         let shared = Mutex::new(Vec::new());
         std::thread::scope(|s| {
-            for _ in 0..jobs {
+            // No more threads than cells to run.
+            for _ in 0..jobs.min(queue.lock().expect("no poisoned lock").len()) {
                 s.spawn(|| {
                     while let Some(i) = queue.lock().expect("no poisoned lock").next() {
                         let cell = &exp.cells[i];

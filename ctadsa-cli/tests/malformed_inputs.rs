@@ -145,6 +145,9 @@ fn out_of_range_flags_are_refused_naming_the_flag() {
         ["bench", "render", "--repeats", "0"],
         ["bench", "train", "--steps", "0"],
         ["bench", "train-suite", "--steps", "1000000000000"],
+        // A million cells at a time spawned a million threads and aborted.
+        ["experiment", "--list", "--jobs", "1000000"],
+        ["experiment", "--list", "--jobs", "0"],
     ] {
         refused(&dir, &args, &[args[args.len() - 2]]);
     }
