@@ -200,7 +200,10 @@ pub fn import_dsa(args: ImportDsaArgs) -> Result<()> {
         args.margin_mm,
         args.voxel_mm,
         vec![],
-    )?;
+    )
+    .with_context(|| {
+        format!("case {} not written (its working volume comes from --margin-mm and --voxel-mm)", args.out.display())
+    })?;
     // Read it back: the same checks `complete` will apply (the prior's was made above).
     Case::load(&args.out).with_context(|| format!("the written case {} does not load", args.out.display()))?;
     println!("case written to {}", args.out.display());
