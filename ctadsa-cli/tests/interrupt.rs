@@ -135,6 +135,19 @@ fn run_folder_is_protected_and_resume_falls_back_to_a_good_checkpoint() {
     let bad = complete(8, &["--resume", ck.to_str().unwrap()]);
     let err = String::from_utf8_lossy(&bad.stderr);
     assert!(!bad.status.success() && !err.contains("panicked") && err.contains("state.json"), "{err}");
+    // So is one whose step count disagrees with its loss history (a run past its end would
+    // write outputs without training), or whose seed counts are absurd.
+    for (key, value, expect) in [
+        ("iteration", serde_json::json!(u64::MAX), "the loss history ends at step 6"),
+        ("n1", serde_json::json!(u64::MAX), "`n1`"),
+    ] {
+        let mut v: serde_json::Value = serde_json::from_str(&text).unwrap();
+        v[key] = value;
+        std::fs::write(&state_path, serde_json::to_string(&v).unwrap()).unwrap();
+        let bad = complete(8, &["--resume", ck.to_str().unwrap()]);
+        let err = String::from_utf8_lossy(&bad.stderr);
+        assert!(!bad.status.success() && err.contains("state.json") && err.contains(expect), "{err}");
+    }
 
     // --overwrite clears what the earlier run wrote (an output this run does not write again
     // must not survive beside the new ones) and keeps what the user put in the folder.

@@ -254,6 +254,23 @@ impl Trainer {
         let state_path = checkpoint.join("state.json");
         let state: CheckpointState = serde_json::from_slice(&read_file(&state_path)?)
             .map_err(|e| CoreError::format(&state_path, format!("invalid checkpoint state: {e}")))?;
+        // state.json carries no digest of its own: its counts must agree with each other.
+        if let Some(last) = state.history.last()
+            && last.iteration != state.iteration
+        {
+            return Err(CoreError::format(
+                &state_path,
+                format!("`iteration` = {} but the loss history ends at step {}", state.iteration, last.iteration),
+            ));
+        }
+        if let Some((name, n)) =
+            [("n1", state.n1), ("n2", state.n2)].into_iter().find(|&(_, n)| n > crate::config::MAX_GAUSSIANS)
+        {
+            return Err(CoreError::format(
+                &state_path,
+                format!("`{name}` = {n} is past the {} Gaussians a run may have", crate::config::MAX_GAUSSIANS),
+            ));
+        }
         if let Some(saved) = &state.training_settings {
             let differ = settings_differences(saved, &training_settings(&cfg));
             if !differ.is_empty() {
