@@ -10,7 +10,7 @@ use anyhow::{Result, bail};
 use clap::Args;
 use ctadsa_core::config::Config;
 use ctadsa_core::data::case::Case;
-use ctadsa_core::data::synth::{SynthConfig, synthesize};
+use ctadsa_core::data::synth::{SynthConfig, synthesize_replacing};
 use ctadsa_core::method::train::{StepLog, Trainer};
 use ctadsa_core::output::export::RunSummary;
 use ctadsa_core::run::completion::{self, Monitor, Outcome, Start};
@@ -292,7 +292,8 @@ pub fn demo(args: DemoArgs) -> Result<()> {
     let case_dir = args.out.join("case");
     let started = Instant::now();
     eprintln!("synthesising the built-in phantom case into {}", case_dir.display());
-    synthesize(&SynthConfig::demo(), &case_dir, &mut |_| {})?;
+    // The demo owns its case folder, as its run folder: made afresh every time.
+    synthesize_replacing(&SynthConfig::demo(), &case_dir, &mut |_| {})?;
     let case = Case::load(&case_dir)?;
     let out = args.out.join("run");
     match run_completion(&case, cfg, args.backend, &out, Start::Overwrite)? {

@@ -4,9 +4,10 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
+use ctadsa_core::data::case::CASE_FILE;
 use ctadsa_core::data::projector::noise::NoiseModel;
 use ctadsa_core::data::synth::presets::GeometryPreset;
-use ctadsa_core::data::synth::{Anatomy, PoseErrorSpec, SynthConfig, synthesize};
+use ctadsa_core::data::synth::{Anatomy, PoseErrorSpec, SynthConfig, synthesize_replacing};
 use ctadsa_core::data::tree::prior::PriorThreshold;
 use ctadsa_core::data::tree::procedural::ProceduralTree;
 
@@ -88,6 +89,10 @@ pub struct SynthArgs {
     /// Simulated registration error: rotation (degrees, random axis through the isocentre).
     #[arg(long, default_value_t = 0.0)]
     pose_error_deg: f64,
+    /// Replace a case already in the output folder: its case.json, views, priors, ground truth,
+    /// pictures and PROVENANCE.md go first (other files stay).
+    #[arg(long)]
+    overwrite: bool,
 }
 
 fn three(v: &Option<Vec<f64>>, what: &str) -> Result<[f64; 3]> {
@@ -192,11 +197,21 @@ pub fn run(args: SynthArgs) -> Result<()> {
         let p = ProceduralTree { seed: args.seed, terminals: args.terminals, ..Default::default() };
         jobs.push((Anatomy::Procedural(p), format!("procedural-seed{}", args.seed), args.out.clone()));
     }
+    // Every folder is checked before any case is made: a case there is kept unless asked.
+    for (_, _, out) in &jobs {
+        if out.join(CASE_FILE).exists() && !args.overwrite {
+            bail!(
+                "{} already holds a case: pass --overwrite to replace it (its views, priors, ground truth and \
+                 pictures go; other files stay)",
+                out.display()
+            );
+        }
+    }
     let steps = ["anatomy", "projections", "meshes", "files"];
     let pb = bar((jobs.len() * steps.len()) as u64, "synth");
     for (anatomy, name, out) in jobs {
         let cfg = config_from(&args, anatomy, name.clone())?;
-        let summary = synthesize(&cfg, &out, &mut |step| {
+        let summary = synthesize_replacing(&cfg, &out, &mut |step| {
             pb.set_message(format!("{name}: {step}"));
             pb.inc(1);
         })

@@ -424,6 +424,41 @@ fn runs_do_not_write_over_files_they_did_not_make() {
     assert_eq!(files_under(&case), before, "files appeared in the case folder");
 }
 
+/// `ctadsa synth` into a folder that holds a case: refused (the case kept) unless --overwrite,
+/// which replaces the case's own files and keeps the user's; a replacement that is itself refused
+/// leaves the old case as it was.
+#[test]
+fn synth_replaces_a_case_only_when_asked() {
+    let dir = sandbox("synth-over");
+    let synth = |extra: &[&str]| {
+        Command::new(BIN)
+            .current_dir(&dir)
+            .args(["synth", "--out", "c", "--terminals", "8", "--detector-px", "128"])
+            .args(extra)
+            .env("RUST_BACKTRACE", "0")
+            .output()
+            .unwrap()
+    };
+    let first = synth(&["--prior-diameter", "1.0,1.5"]);
+    assert!(first.status.success(), "{}", String::from_utf8_lossy(&first.stderr));
+    std::fs::write(dir.join("c/notes.txt"), "mine").unwrap();
+    let case_json = std::fs::read(dir.join("c/case.json")).unwrap();
+    let again = synth(&["--seed", "2"]);
+    let stderr = String::from_utf8_lossy(&again.stderr);
+    assert!(!again.status.success() && stderr.contains("already holds a case") && stderr.contains("--overwrite"));
+    assert_eq!(std::fs::read(dir.join("c/case.json")).unwrap(), case_json, "the case was touched");
+    // A replacement refused by its own checks (a tree off the detectors) keeps the old case.
+    let off = synth(&["--overwrite", "--translate-mm", "300", "0", "0"]);
+    assert!(!off.status.success());
+    assert_eq!(std::fs::read(dir.join("c/case.json")).unwrap(), case_json, "a refused replacement removed the case");
+    assert!(dir.join("c/priors/d1p50mm/prior.obj").exists());
+    let replaced = synth(&["--overwrite", "--seed", "2", "--prior-diameter", "1.0"]);
+    assert!(replaced.status.success(), "{}", String::from_utf8_lossy(&replaced.stderr));
+    assert_ne!(std::fs::read(dir.join("c/case.json")).unwrap(), case_json);
+    assert!(!dir.join("c/priors/d1p50mm").exists(), "a prior of the old case survived its replacement");
+    assert_eq!(std::fs::read_to_string(dir.join("c/notes.txt")).unwrap(), "mine", "a file of the user's removed");
+}
+
 /// A FIFO at `path` (`mkfifo`); false where the tool is missing.
 fn make_fifo(path: &Path) -> bool {
     let _ = std::fs::remove_file(path);

@@ -101,6 +101,18 @@ pub fn write_file(path: &Path, bytes: &[u8]) -> Result<()> {
     })
 }
 
+/// Removes a file or a whole folder if it is there, naming it on failure.
+pub fn remove_path(path: &Path) -> Result<()> {
+    let removed = if path.is_dir() {
+        std::fs::remove_dir_all(path)
+    } else if path.exists() {
+        std::fs::remove_file(path)
+    } else {
+        Ok(())
+    };
+    removed.map_err(|e| CoreError::io(path, e))
+}
+
 /// `value` as pretty JSON, or an error naming `path` (never an empty file).
 pub fn to_json(value: &impl serde::Serialize, path: &Path) -> Result<String> {
     serde_json::to_string_pretty(value).map_err(|e| CoreError::format(path, format!("cannot encode JSON: {e}")))

@@ -9,7 +9,7 @@ use burn::tensor::Device;
 
 use crate::config::Config;
 use crate::data::case::{CASE_FILE, Case};
-use crate::error::{CoreError, Result};
+use crate::error::{CoreError, Result, remove_path};
 use crate::method::train::{StepLog, Trainer};
 use crate::output::export::{RunSummary, write_outputs};
 use crate::output::report::write_report;
@@ -120,17 +120,6 @@ fn run_outputs_in(out: &Path) -> Vec<String> {
     names
 }
 
-fn remove(path: &Path) -> Result<()> {
-    let removed = if path.is_dir() {
-        std::fs::remove_dir_all(path)
-    } else if path.exists() {
-        std::fs::remove_file(path)
-    } else {
-        Ok(())
-    };
-    removed.map_err(|e| CoreError::io(path, e))
-}
-
 /// The trainer for `start`: `Resume("latest")` falls back to older checkpoints when the newest
 /// cannot be read (e.g. a file cut short by a kill), saying so through `monitor`.
 pub fn start_trainer(
@@ -151,7 +140,7 @@ pub fn start_trainer(
         Start::Overwrite => {
             // Everything an earlier run wrote here, and nothing else the folder may hold.
             for name in run_outputs_in(out) {
-                remove(&out.join(name))?;
+                remove_path(&out.join(name))?;
             }
             Trainer::new(case, cfg.clone(), device)
         }

@@ -11,8 +11,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::data::case::images::{Image, write_png16, write_preview_png, write_rgb_or_grey, write_tiff_f32};
 use crate::data::case::{
-    CASE_FORMAT, CASE_VERSION, CaseFile, GroundTruth, ImageValues, PriorEntry, Provenance, ViewEntry, ViewGeometry,
-    VolumeEntry,
+    CASE_FILE, CASE_FORMAT, CASE_VERSION, CaseFile, GroundTruth, ImageValues, PriorEntry, Provenance, ViewEntry,
+    ViewGeometry, VolumeEntry,
 };
 use crate::data::mesh::TriMesh;
 use crate::data::mesh::io::write_mesh;
@@ -29,7 +29,7 @@ use crate::data::volume::edt::local_thickness;
 use crate::data::volume::nifti_io::{read_nifti, write_nifti};
 use crate::data::volume::rasterize::rasterize_segments;
 use crate::data::volume::{BoxMm, Grid, Volume};
-use crate::error::{CoreError, Result, write_file};
+use crate::error::{CoreError, Result, remove_path, write_file};
 use presets::{GeometryPreset, view_preset};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -542,8 +542,34 @@ fn write_views(out: &Path, acq: Acquisition, prior_mesh: &TriMesh, missing_mesh:
     Ok(entries)
 }
 
-/// Writes a synthetic case into `out`, reporting each step to `progress`.
+/// What [`synthesize`] writes into a case folder (besides `.tmp` files while it writes).
+pub const CASE_OUTPUTS: [&str; 6] = [CASE_FILE, "PROVENANCE.md", "views", "priors", "gt", "pictures"];
+
+/// Removes an earlier case from `dir` — [`CASE_OUTPUTS`] and nothing else the folder holds — so
+/// that a case made again there keeps no prior, view or picture of the old one.
+fn remove_case(dir: &Path) -> Result<()> {
+    CASE_OUTPUTS.iter().try_for_each(|name| remove_path(&dir.join(name)))
+}
+
+/// Writes a synthetic case into `out`, reporting each step to `progress`. Files of an earlier
+/// case there are overwritten, not removed ([`synthesize_replacing`] replaces one).
 pub fn synthesize(cfg: &SynthConfig, out: &Path, progress: &mut dyn FnMut(&str)) -> Result<SynthSummary> {
+    synthesize_into(cfg, out, false, progress)
+}
+
+/// [`synthesize`], replacing an earlier case in `out`: once the new case's anatomy and views
+/// have passed their checks (a refused case leaves the old one as it was), [`remove_case`]
+/// clears the old case's files, so that no prior, view or picture of it remains.
+pub fn synthesize_replacing(cfg: &SynthConfig, out: &Path, progress: &mut dyn FnMut(&str)) -> Result<SynthSummary> {
+    synthesize_into(cfg, out, true, progress)
+}
+
+fn synthesize_into(
+    cfg: &SynthConfig,
+    out: &Path,
+    replace: bool,
+    progress: &mut dyn FnMut(&str),
+) -> Result<SynthSummary> {
     if cfg.priors.is_empty() {
         return Err(CoreError::invalid("at least one prior threshold is needed"));
     }
@@ -555,6 +581,9 @@ pub fn synthesize(cfg: &SynthConfig, out: &Path, progress: &mut dyn FnMut(&str))
     let mut acq = acquire(cfg, &r.complete)?;
     let (normalised_by, view_corrections, n_views) = (acq.normalised_by, acq.view_corrections.clone(), acq.names.len());
     let view_warnings = std::mem::take(&mut acq.warnings);
+    if replace {
+        remove_case(out)?;
+    }
     progress("meshes");
     let WrittenPriors { entries: prior_entries, prior_mesh, missing_mesh } = write_truth_and_priors(&r, out)?;
     progress("files");
