@@ -106,6 +106,13 @@ pub struct OutputConfig {
     /// everything. docs/RESULTS.md, "Which new vessels to trust", gives the precision / recall
     /// trade-off.
     pub min_confidence: f64,
+    /// With two views whose arrival maps the case has (a time-resolved run,
+    /// [`crate::data::case::ViewEntry::arrival`]): new branches of which less than this share of
+    /// the length fills in the same frame in both views are left out of the written and scored
+    /// centreline, as ghosts ([`crate::output::arrival`]); 0 keeps them.
+    pub arrival_min_agreement: f64,
+    /// Frames by which the two views' arrivals may differ and still agree.
+    pub arrival_tolerance_frames: f64,
 }
 
 impl OutputConfig {
@@ -165,6 +172,8 @@ impl Default for OutputConfig {
             centreline_bridge_mm: 1.0,
             centreline_bridge_prior_clearance_mm: 0.0,
             min_confidence: 0.0,
+            arrival_min_agreement: 0.5,
+            arrival_tolerance_frames: 0.0,
         }
     }
 }

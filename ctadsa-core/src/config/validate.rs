@@ -213,6 +213,16 @@ impl Config {
         check(self.output.min_island_mm2 >= 0.0, "output.min_island_mm2", "must be ≥ 0")?;
         check((0.0..=1.0).contains(&self.output.min_confidence), "output.min_confidence", "must be in [0, 1]")?;
         check(
+            (0.0..=1.0).contains(&self.output.arrival_min_agreement),
+            "output.arrival_min_agreement",
+            "must be in [0, 1]",
+        )?;
+        check(
+            (0.0..=1000.0).contains(&self.output.arrival_tolerance_frames),
+            "output.arrival_tolerance_frames",
+            "must be in [0, 1000]",
+        )?;
+        check(
             (0.0..=1.0).contains(&self.output.connected_level_fraction),
             "output.connected_level_fraction",
             "must be in [0, 1]",

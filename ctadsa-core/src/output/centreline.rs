@@ -10,6 +10,7 @@ use glam::DVec3;
 use rayon::prelude::*;
 use serde::Serialize;
 
+use crate::data::case::images::Image;
 use crate::data::mesh::TriMesh;
 use crate::data::mesh::distance::SurfaceIndex;
 use crate::data::mesh::render_png::{Coloured, OrbitView, standard_views, write_mesh_png};
@@ -21,10 +22,11 @@ use crate::data::volume::Volume;
 use crate::data::volume::skeleton::{SkeletonParams, skeletonize};
 use crate::error::Result;
 use crate::eval::centreline_metrics::{CentrelineMatch, CentrelineScores, score_centreline};
+use crate::output::arrival::arrival_agreement;
 use crate::output::centring::centre_nodes;
 use crate::output::confidence::{
     CONFIDENCE_BINS, ConfidenceBin, bin_of, branch_confidence, confidence_bins, confidence_rgb, node_confidence,
-    without_doubtful_branches, write_branches_csv,
+    without_branches, write_branches_csv,
 };
 
 /// What a run's centreline is and how it scores.
@@ -42,6 +44,20 @@ pub struct CentrelineSummary {
     /// The new centreline by confidence ([`crate::output::confidence`]): length per bin, and
     /// with a true tree the part on a true vessel (precision per bin: the reliability diagram).
     pub confidence_bins: Vec<ConfidenceBin>,
+    /// New branches left out because their arrival disagrees between the two views
+    /// ([`ArrivalCheck`]); absent when the run has no arrival maps.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub arrival_dropped_branches: Option<usize>,
+}
+
+/// The arrival check of a time-resolved 2-view run ([`crate::output::arrival`]): the run's
+/// arrival maps and `output.arrival_*`.
+#[derive(Debug, Clone, Copy)]
+pub struct ArrivalCheck<'a> {
+    /// Per view of the run, its arrival map (frames, −1 where no vessel fills).
+    pub maps: &'a [Image],
+    pub tolerance_frames: f64,
+    pub min_agreement: f64,
 }
 
 /// One part of the completed solid: its voxels and its surface.
@@ -142,13 +158,24 @@ pub fn write_centreline(
     views: &[ConeBeamView],
     truth: Option<(&[Segment], &[Segment])>,
     min_confidence: f64,
+    arrival: Option<ArrivalCheck<'_>>,
 ) -> Result<(CentrelineSummary, Vec<f64>)> {
     let branches = branch_confidence(all, views);
     let all_confidence = node_confidence(all, &branches);
-    write_branches_csv(&dir.join("branches.csv"), &branches, views.len())?;
+    let agreement = match &arrival {
+        Some(a) => arrival_agreement(all, &branches, views, a.maps, a.tolerance_frames as f32),
+        None => vec![None; branches.len()],
+    };
+    write_branches_csv(&dir.join("branches.csv"), &branches, views.len(), &agreement)?;
+    let min_agreement = arrival.as_ref().map_or(0.0, |a| a.min_agreement);
+    let drop: Vec<bool> = branches
+        .iter()
+        .zip(&agreement)
+        .map(|(b, a)| b.new && (b.confidence < min_confidence || a.is_some_and(|a| a < min_agreement)))
+        .collect();
     let kept;
-    let (tree, confidence) = if min_confidence > 0.0 {
-        kept = without_doubtful_branches(all, &branches, &all_confidence, min_confidence);
+    let (tree, confidence) = if drop.contains(&true) {
+        kept = without_branches(all, &branches, &drop, &all_confidence);
         (&kept.0, &kept.1)
     } else {
         (all, &all_confidence)
@@ -180,7 +207,8 @@ pub fn write_centreline(
             (None, confidence_bins(new.map(|s| (confidence[s.child], s.length_mm(), None))))
         }
     };
-    let kept_new = branches.iter().filter(|b| b.new && b.confidence >= min_confidence).count();
+    let kept_new = branches.iter().zip(&drop).filter(|(b, d)| b.new && !**d).count();
+    let arrival_dropped = arrival.is_some().then(|| drop.iter().zip(&branches).filter(|(d, b)| **d && b.new).count());
     let summary = CentrelineSummary {
         nodes: tree.nodes.len(),
         length_mm,
@@ -189,6 +217,7 @@ pub fn write_centreline(
         branches: branches.len() - branches.iter().filter(|b| b.new).count() + kept_new,
         new_branches: kept_new,
         confidence_bins,
+        arrival_dropped_branches: arrival_dropped,
     };
     Ok((summary, all_confidence))
 }

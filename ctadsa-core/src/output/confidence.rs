@@ -296,8 +296,21 @@ pub fn without_doubtful_branches(
     confidence: &[f64],
     min_confidence: f64,
 ) -> (VesselTree, Vec<f64>) {
+    let drop: Vec<bool> = branches.iter().map(|b| b.new && b.confidence < min_confidence).collect();
+    without_branches(tree, branches, &drop, confidence)
+}
+
+/// `tree` without the branches marked in `drop` (their nodes other than the one they start from,
+/// prior nodes kept), and the kept nodes' `confidence`. A branch hanging from a dropped one
+/// becomes a tree of its own.
+pub fn without_branches(
+    tree: &VesselTree,
+    branches: &[Branch],
+    drop: &[bool],
+    confidence: &[f64],
+) -> (VesselTree, Vec<f64>) {
     let mut keep = vec![true; tree.nodes.len()];
-    for b in branches.iter().filter(|b| b.new && b.confidence < min_confidence) {
+    for (b, _) in branches.iter().zip(drop).filter(|(_, d)| **d) {
         for &i in &b.nodes[1..] {
             keep[i] = tree.nodes[i].kind == KIND_PRIOR_VESSEL;
         }
@@ -393,13 +406,14 @@ pub fn confidence_bins(pieces: impl Iterator<Item = (f64, f64, Option<f64>)>) ->
     bins
 }
 
-/// `branches.csv`: one row per branch (lengths and radii in mm).
-pub fn write_branches_csv(path: &Path, branches: &[Branch], views: usize) -> Result<()> {
+/// `branches.csv`: one row per branch (lengths and radii in mm), with its arrival agreement
+/// ([`crate::output::arrival::arrival_agreement`]; empty where not checked).
+pub fn write_branches_csv(path: &Path, branches: &[Branch], views: usize, arrival: &[Option<f64>]) -> Result<()> {
     let mut s = String::from("branch,new,length_mm,mean_radius_mm,connected_to_prior,confidence");
     for v in 0..views {
         let _ = write!(s, ",unique_support_view{v}");
     }
-    s.push('\n');
+    s.push_str(",arrival_agreement\n");
     for (k, b) in branches.iter().enumerate() {
         let _ = write!(
             s,
@@ -409,7 +423,12 @@ pub fn write_branches_csv(path: &Path, branches: &[Branch], views: usize) -> Res
         for u in &b.unique_support {
             let _ = write!(s, ",{u:.3}");
         }
-        s.push('\n');
+        match arrival.get(k).copied().flatten() {
+            Some(a) => {
+                let _ = writeln!(s, ",{a:.3}");
+            }
+            None => s.push_str(",\n"),
+        }
     }
     write_file(path, s.as_bytes())
 }

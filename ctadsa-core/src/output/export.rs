@@ -10,7 +10,7 @@ use glam::DVec3;
 use serde::Serialize;
 
 use crate::config::OutputConfig;
-use crate::data::case::images::write_rgb_or_grey;
+use crate::data::case::images::{Image, write_rgb_or_grey};
 use crate::data::case::{Case, ViewGeometry};
 use crate::data::mesh::TriMesh;
 use crate::data::mesh::io::{write_mesh, write_point_ply};
@@ -29,7 +29,8 @@ use crate::eval::topology::{TopologyScores, topology_scores};
 use crate::method::field_health::DensitySpread;
 use crate::method::train::{StepLog, Trainer};
 use crate::method::training_time::TrainingTime;
-use crate::output::centreline::{CentrelineSummary, SolidPart, completed_centreline, write_centreline};
+use crate::output::arrival::run_arrival_maps;
+use crate::output::centreline::{ArrivalCheck, CentrelineSummary, SolidPart, completed_centreline, write_centreline};
 use crate::output::confidence::{MESH_CONFIDENCE, mesh_without_doubtful, vertex_confidence, write_mesh_confidence};
 use crate::output::extraction::{
     LevelReach, LevelScore, best_level, bridged_solid, completed_solid, density_scale, faint_level_field, join_prior,
@@ -291,8 +292,17 @@ pub fn write_outputs(
     let surface = extract_completed_surface(dir, trainer, &volume, prior.as_ref())?;
     let truth = CaseTruth::load(case)?;
     let traced = traced_solid(trainer, seed_members, member, &volume, &surface, prior.as_ref())?;
-    let (centreline, topology, vertex_confidence) =
-        write_centreline_of(dir, &volume, &surface, &traced, &cfg.output, trainer.views().views(), truth.as_ref())?;
+    let arrival_maps = run_arrival_maps(case, cfg)?;
+    let (centreline, topology, vertex_confidence) = write_centreline_of(
+        dir,
+        &volume,
+        &surface,
+        &traced,
+        &cfg.output,
+        trainer.views().views(),
+        arrival_maps.as_deref(),
+        truth.as_ref(),
+    )?;
     let trusted;
     let mesh = if cfg.output.min_confidence > 0.0 {
         trusted = mesh_without_doubtful(&surface.mesh, &vertex_confidence, cfg.output.min_confidence);
@@ -547,7 +557,9 @@ fn traced_solid<'a>(
 }
 
 /// The centreline of the completed solid ([`TracedSolid`]), written and scored
-/// ([`write_centreline`]); the topology scores on the density volume's grid.
+/// ([`write_centreline`]; `arrival_maps`: the run's views', when the case has them); the
+/// topology scores on the density volume's grid.
+#[allow(clippy::too_many_arguments)]
 fn write_centreline_of(
     dir: &Path,
     volume: &Volume<f32>,
@@ -555,6 +567,7 @@ fn write_centreline_of(
     traced: &TracedSolid,
     out: &OutputConfig,
     views: &[ConeBeamView],
+    arrival_maps: Option<&[Image]>,
     truth: Option<&CaseTruth>,
 ) -> Result<(CentrelineSummary, Option<TopologyScores>, Vec<f64>)> {
     let prior = traced.prior;
@@ -603,7 +616,12 @@ fn write_centreline_of(
         topology_scores(&completed, &true_solid, &tree.segments(), skeleton)
     });
     let truth = truth.and_then(|t| t.missing_centreline.as_deref().zip(t.centreline.as_deref()));
-    let (summary, confidence) = write_centreline(dir, &tree, views, truth, out.min_confidence)?;
+    let arrival = arrival_maps.filter(|_| out.arrival_min_agreement > 0.0).map(|maps| ArrivalCheck {
+        maps,
+        tolerance_frames: out.arrival_tolerance_frames,
+        min_agreement: out.arrival_min_agreement,
+    });
+    let (summary, confidence) = write_centreline(dir, &tree, views, truth, out.min_confidence, arrival)?;
     let at_vertices = vertex_confidence(&surface.mesh, &tree, &confidence);
     write_mesh_confidence(&dir.join(MESH_CONFIDENCE), &surface.mesh, &at_vertices)?;
     Ok((summary, topology, at_vertices))

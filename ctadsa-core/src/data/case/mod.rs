@@ -160,6 +160,11 @@ pub struct ViewEntry {
     #[serde(default)]
     pub preview_png: Option<String>,
     pub geometry: ViewGeometry,
+    /// Optional, from a time-resolved run: per pixel, the frame (0, 1, …) at which the contrast
+    /// first fills a vessel along its ray, −1 where none fills; a 32-bit float TIFF of the
+    /// image's size, relative to the case folder ([`Case::arrival_maps`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub arrival: Option<String>,
 }
 
 /// The prior (what a CTA segmentation shows).
@@ -384,6 +389,42 @@ impl Case {
         }
         let views = ViewSet::new(views).map_err(|e| CoreError::format(&path, e.to_string()))?;
         Ok(Self { dir: dir.to_path_buf(), file, views, images })
+    }
+
+    /// The arrival maps of the views ([`ViewEntry::arrival`]), when every view has one: each of
+    /// the view's size, its values whole frames ≥ 0 or −1 (no vessel).
+    pub fn arrival_maps(&self) -> Result<Option<Vec<Image>>> {
+        let Some(paths) = self.file.views.iter().map(|v| v.arrival.as_ref()).collect::<Option<Vec<_>>>() else {
+            return Ok(None);
+        };
+        let mut maps = Vec::new();
+        for ((relative, entry), image) in paths.into_iter().zip(&self.file.views).zip(&self.images) {
+            let path = self.dir.join(relative);
+            let map = read_image(&path, None)?;
+            if (map.width, map.height) != (image.width, image.height) {
+                return Err(CoreError::format(
+                    &path,
+                    format!(
+                        "arrival map is {} × {} pixels but view `{}`'s image is {} × {}",
+                        map.width, map.height, entry.name, image.width, image.height
+                    ),
+                ));
+            }
+            if let Some(i) = map.data.iter().position(|&f| !(f == -1.0 || (f >= 0.0 && f.fract() == 0.0))) {
+                return Err(CoreError::format(
+                    &path,
+                    format!(
+                        "pixel (column {}, row {}) is {}: an arrival map holds whole frames ≥ 0, or −1 where no \
+                         vessel fills",
+                        i as u32 % map.width,
+                        i as u32 / map.width,
+                        map.data[i]
+                    ),
+                ));
+            }
+            maps.push(map);
+        }
+        Ok(Some(maps))
     }
 
     /// The prior mesh, if the case has one; refused when it does not lie where the views look

@@ -271,6 +271,7 @@ pub fn write_dsa_case(
             png_scale: Some(1.0),
             preview_png: Some(format!("views/{}.png", v.name)),
             geometry: ViewGeometry::from_tigre(&v.geometry),
+            arrival: None,
         });
         notes.extend(v.notes.iter().cloned());
     }

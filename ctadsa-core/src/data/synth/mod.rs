@@ -1,6 +1,7 @@
 //! Synthetic cases: anatomy (a vessel tree or a label volume) → occupancy volume → complete,
 //! prior and missing meshes → DSA views by the independent voxel projector → a case folder.
 
+pub mod arrival;
 pub mod presets;
 
 use std::path::{Path, PathBuf};
@@ -30,6 +31,7 @@ use crate::data::volume::nifti_io::{read_nifti, write_nifti};
 use crate::data::volume::rasterize::rasterize_segments;
 use crate::data::volume::{BoxMm, Grid, Volume};
 use crate::error::{CoreError, Result, remove_path, write_file};
+use arrival::{ArrivalSpec, arrival_map};
 use presets::{GeometryPreset, view_preset};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -92,6 +94,10 @@ pub struct SynthConfig {
     /// this much, while the case records the nominal pose (the truth goes to ground truth).
     #[serde(default)]
     pub pose_error: Option<PoseErrorSpec>,
+    /// A time-resolved run: each view also gets an arrival map ([`arrival::arrival_map`]; trees
+    /// only).
+    #[serde(default)]
+    pub arrival: Option<ArrivalSpec>,
 }
 
 /// Size of a simulated pose error per view.
@@ -152,6 +158,12 @@ impl SynthConfig {
         {
             return bad("pose error", "must be finite".into());
         }
+        if let Some(a) = &self.arrival {
+            a.validate()?;
+            if matches!(self.anatomy, Anatomy::Labels { .. }) {
+                return bad("arrival maps", "need a tree (SWC or the procedural one), not a label volume".into());
+            }
+        }
         Ok(())
     }
 
@@ -210,6 +222,7 @@ impl Default for SynthConfig {
             normalise: false,
             priors: vec![PriorThreshold::DiameterMm(1.5)],
             pose_error: None,
+            arrival: None,
         }
     }
 }
@@ -430,6 +443,10 @@ struct Acquisition {
     view_corrections: Option<Vec<PoseCorrection>>,
     /// Views that see only part of the vessels.
     warnings: Vec<String>,
+    /// The views as imaged (pose errors applied).
+    imaged: Vec<ConeBeamView>,
+    /// Per view, the arrival map of a time-resolved run ([`SynthConfig::arrival`]).
+    arrivals: Option<Vec<Image>>,
 }
 
 fn acquire(cfg: &SynthConfig, complete: &Volume<f32>) -> Result<Acquisition> {
@@ -487,7 +504,7 @@ fn acquire(cfg: &SynthConfig, complete: &Volume<f32>) -> Result<Acquisition> {
         images.iter_mut().for_each(|img| img.iter_mut().for_each(|v| *v /= m as f32));
     }
     let names = angles.into_iter().map(|(name, _, _)| name).collect();
-    Ok(Acquisition { names, geometries, images, normalised_by, view_corrections, warnings })
+    Ok(Acquisition { names, geometries, images, normalised_by, view_corrections, warnings, imaged, arrivals: None })
 }
 
 /// The share (0–1) of `occupancy`'s total that projects onto `view`'s detector, each voxel
@@ -519,8 +536,16 @@ fn write_views(out: &Path, acq: Acquisition, prior_mesh: &TriMesh, missing_mesh:
     let mut entries = Vec::new();
     let display_max = acq.images.iter().flat_map(|i| i.iter()).copied().fold(0.0f32, f32::max);
     let mut strip: Vec<Image> = Vec::new();
-    for ((name, geom), data) in acq.names.iter().zip(&acq.geometries).zip(acq.images) {
+    for (i, ((name, geom), data)) in acq.names.iter().zip(&acq.geometries).zip(acq.images).enumerate() {
         let img = Image { width: geom.detector_px[0], height: geom.detector_px[1], data };
+        let arrival = match acq.arrivals.as_ref().map(|maps| &maps[i]) {
+            Some(map) => {
+                let relative = format!("views/{name}-arrival.tiff");
+                write_tiff_f32(&out.join(&relative), map)?;
+                Some(relative)
+            }
+            None => None,
+        };
         write_tiff_f32(&out.join(format!("views/{name}.tiff")), &img)?;
         let scale = write_png16(&out.join(format!("views/{name}.png")), &img)?;
         write_preview_png(&out.join(format!("pictures/view-{name}.png")), &img, 0.0, display_max, true)?;
@@ -530,6 +555,7 @@ fn write_views(out: &Path, acq: Acquisition, prior_mesh: &TriMesh, missing_mesh:
             png_scale: Some(scale),
             preview_png: Some(format!("views/{name}.png")),
             geometry: ViewGeometry::from_tigre(geom),
+            arrival,
         });
         strip.push(img);
     }
@@ -581,6 +607,10 @@ fn synthesize_into(
     let mut acq = acquire(cfg, &r.complete)?;
     let (normalised_by, view_corrections, n_views) = (acq.normalised_by, acq.view_corrections.clone(), acq.names.len());
     let view_warnings = std::mem::take(&mut acq.warnings);
+    if let Some(spec) = &cfg.arrival {
+        let tree = r.tree.as_ref().ok_or_else(|| CoreError::invalid("arrival maps need a tree"))?;
+        acq.arrivals = Some(acq.imaged.iter().map(|view| arrival_map(tree, view, spec)).collect());
+    }
     if replace {
         remove_case(out)?;
     }

@@ -1,0 +1,176 @@
+//! The contrast's arrival time as a check of new vessels seen in two views. A time-resolved
+//! biplane run images the bolus in both planes at the same instants, so each pixel has the frame
+//! at which the first vessel along its ray fills ([`crate::data::case::ViewEntry::arrival`]). A
+//! vessel found in 3-D fills at one time in both views; a ghost, which pairs one vessel's image
+//! in one view with another's in the other, shows two different times.
+
+use ctadsa_render::ConeBeamView;
+
+use super::confidence::Branch;
+use crate::config::Config;
+use crate::data::case::Case;
+use crate::data::case::images::Image;
+use crate::data::synth::arrival::NO_ARRIVAL;
+use crate::data::tree::VesselTree;
+use crate::error::Result;
+
+/// Step (mm) between the points of a branch that are checked.
+const SAMPLE_MM: f64 = 0.1;
+
+/// The arrival maps of a run's views (its `run.views`, binned by `run.image_binning`: a binned
+/// pixel keeps the earliest frame of its block), when the case has one for every view.
+pub fn run_arrival_maps(case: &Case, cfg: &Config) -> Result<Option<Vec<Image>>> {
+    let case = if cfg.run.views.is_empty() { case.clone() } else { case.select_views(&cfg.run.views)? };
+    let Some(maps) = case.arrival_maps()? else { return Ok(None) };
+    Ok(Some(maps.iter().map(|m| bin_earliest(m, cfg.run.image_binning.max(1))).collect()))
+}
+
+/// `map` binned by `b` (the image binning's block layout): the earliest frame of each block.
+fn bin_earliest(map: &Image, b: u32) -> Image {
+    if b <= 1 {
+        return map.clone();
+    }
+    let (w, h) = ((map.width / b).max(1), (map.height / b).max(1));
+    let mut data = vec![NO_ARRIVAL; (w * h) as usize];
+    for r in 0..h {
+        for c in 0..w {
+            let block = (0..b * b).map(|k| {
+                let (rr, cc) = ((r * b + k / b).min(map.height - 1), (c * b + k % b).min(map.width - 1));
+                map.data[(rr * map.width + cc) as usize]
+            });
+            let earliest = block.filter(|&f| f >= 0.0).fold(f32::INFINITY, f32::min);
+            if earliest.is_finite() {
+                data[(r * w + c) as usize] = earliest;
+            }
+        }
+    }
+    Image { width: w, height: h, data }
+}
+
+/// The frames of the 3 × 3 pixels around `view`'s projection of `p` that some vessel fills.
+fn frames_around(view: &ConeBeamView, map: &Image, p: glam::DVec3) -> Vec<f32> {
+    let Some(uv) = view.project(p) else { return Vec::new() };
+    let (u, v) = (uv.x.round() as i64, uv.y.round() as i64);
+    let mut out = Vec::with_capacity(9);
+    for dv in -1..=1 {
+        for du in -1..=1 {
+            let (c, r) = (u + du, v + dv);
+            if c >= 0 && r >= 0 && c < map.width as i64 && r < map.height as i64 {
+                let f = map.data[r as usize * map.width as usize + c as usize];
+                if f >= 0.0 {
+                    out.push(f);
+                }
+            }
+        }
+    }
+    out
+}
+
+/// For each new branch of `tree` in a run of two views: the share (0–1) of its length whose
+/// projections into the two views lie on pixels (3 × 3 around each) filled in frames within
+/// `tolerance_frames` of each other. `None` for prior branches, and for every branch unless there
+/// are exactly two views (with three, the third view already rejects the ghosts).
+pub fn arrival_agreement(
+    tree: &VesselTree,
+    branches: &[Branch],
+    views: &[ConeBeamView],
+    maps: &[Image],
+    tolerance_frames: f32,
+) -> Vec<Option<f64>> {
+    branches
+        .iter()
+        .map(|b| {
+            if !b.new || views.len() != 2 || maps.len() != 2 {
+                return None;
+            }
+            let (mut agree, mut total) = (0.0, 0.0);
+            for pair in b.nodes.windows(2) {
+                let (a, z) = (tree.nodes[pair[0]].position_mm, tree.nodes[pair[1]].position_mm);
+                let length = a.distance(z);
+                let n = (length / SAMPLE_MM).ceil().max(1.0) as usize;
+                for k in 0..n {
+                    let p = a.lerp(z, (k as f64 + 0.5) / n as f64);
+                    let (first, second) =
+                        (frames_around(&views[0], &maps[0], p), frames_around(&views[1], &maps[1], p));
+                    let same = first.iter().any(|f| second.iter().any(|g| (f - g).abs() <= tolerance_frames));
+                    total += length / n as f64;
+                    if same {
+                        agree += length / n as f64;
+                    }
+                }
+            }
+            Some(if total > 0.0 { agree / total } else { 0.0 })
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::data::synth::arrival::{ArrivalSpec, arrival_map};
+    use crate::data::tree::{KIND_NEW_VESSEL, TreeNode};
+    use ctadsa_render::TigreGeometry;
+    use glam::DVec3;
+
+    fn node(id: i64, parent: Option<usize>, p: [f64; 3], kind: i32) -> TreeNode {
+        TreeNode { id, kind, position_mm: DVec3::from(p), radius_mm: 0.3, parent }
+    }
+
+    fn new_branch(nodes: Vec<usize>) -> Branch {
+        Branch {
+            nodes,
+            new: true,
+            length_mm: 0.0,
+            mean_radius_mm: 0.3,
+            connected_to_prior: true,
+            unique_support: vec![],
+            confidence: 1.0,
+        }
+    }
+
+    /// Two vertical vessels filled in opposite directions: A at x = y = 0 from its root at
+    /// z = −20 mm, B at x = y = 20 mm from its root at z = +20 mm. AP (along y) sees A at x = 0,
+    /// LAT (along x) sees B at y = 20, so the vertical ghost at (0, 20) lies under A in AP and
+    /// under B in LAT: its two frames differ, while a stretch of A has A's frames in both views.
+    #[test]
+    fn a_vessel_agrees_and_a_ghost_between_two_vessels_does_not() {
+        let truth = VesselTree {
+            nodes: vec![
+                node(1, None, [0.0, 0.0, -20.0], 0),
+                node(2, Some(0), [0.0, 0.0, 20.0], 0),
+                node(3, None, [20.0, 20.0, 20.0], 0),
+                node(4, Some(2), [20.0, 20.0, -20.0], 0),
+            ],
+        };
+        let spec = ArrivalSpec { frames_per_s: 10.0, flow_mm_s: 100.0 };
+        let views: Vec<ConeBeamView> = [-90.0, 0.0]
+            .map(|primary| {
+                let mut g = TigreGeometry::reference(primary);
+                g.detector_px = [128, 128];
+                g.pixel_mm = [1.0, 1.0];
+                ConeBeamView::from_tigre(&g).unwrap()
+            })
+            .into();
+        let maps: Vec<Image> = views.iter().map(|v| arrival_map(&truth, v, &spec)).collect();
+        let found = VesselTree {
+            nodes: vec![
+                node(1, None, [0.0, 0.0, -15.0], KIND_NEW_VESSEL),
+                node(2, Some(0), [0.0, 0.0, -5.0], KIND_NEW_VESSEL),
+                node(3, None, [0.0, 20.0, -15.0], KIND_NEW_VESSEL),
+                node(4, Some(2), [0.0, 20.0, -5.0], KIND_NEW_VESSEL),
+            ],
+        };
+        let branches = [new_branch(vec![0, 1]), new_branch(vec![2, 3])];
+        let agreement = arrival_agreement(&found, &branches, &views, &maps, 0.0);
+        assert_eq!(agreement[0], Some(1.0), "the true vessel");
+        assert_eq!(agreement[1], Some(0.0), "the ghost");
+        // Three views: not checked.
+        let three = [views[0], views[1], views[0]];
+        assert!(arrival_agreement(&found, &branches, &three, &maps, 0.0).iter().all(Option::is_none));
+        // Binning keeps the earliest frame of each block.
+        let map = Image { width: 2, height: 2, data: vec![NO_ARRIVAL, 3.0, 2.0, NO_ARRIVAL] };
+        assert_eq!(bin_earliest(&map, 2).data, vec![2.0]);
+        let empty = Image { width: 2, height: 2, data: vec![NO_ARRIVAL; 4] };
+        assert_eq!(bin_earliest(&empty, 2).data, vec![NO_ARRIVAL]);
+    }
+}
