@@ -216,6 +216,11 @@ pub fn print_summary(summary: &RunSummary, out: &Path) {
             );
         }
     }
+    if let Some(dropped) = summary.centreline.arrival_dropped_branches {
+        println!(
+            "  arrival check (two views): {dropped} new branches left out, their arrival differing between the views"
+        );
+    }
     if let Some(t) = &summary.topology {
         println!(
             "  topology: clDice {:.3} (topology precision {:.3}, sensitivity {:.3}), {} components against {} \

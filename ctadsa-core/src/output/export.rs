@@ -616,7 +616,9 @@ fn write_centreline_of(
         topology_scores(&completed, &true_solid, &tree.segments(), skeleton)
     });
     let truth = truth.and_then(|t| t.missing_centreline.as_deref().zip(t.centreline.as_deref()));
-    let arrival = arrival_maps.filter(|_| out.arrival_min_agreement > 0.0).map(|maps| ArrivalCheck {
+    // With three views or more the third view already rejects the ghosts.
+    let checked = out.arrival_min_agreement > 0.0 && views.len() == 2;
+    let arrival = arrival_maps.filter(|_| checked).map(|maps| ArrivalCheck {
         maps,
         tolerance_frames: out.arrival_tolerance_frames,
         min_agreement: out.arrival_min_agreement,

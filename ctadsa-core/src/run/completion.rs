@@ -198,6 +198,8 @@ pub fn run_completion(
             out.display()
         )));
     }
+    // The arrival maps are read by the outputs only: a bad one is named before training.
+    case.arrival_maps()?;
     // One process per run folder: a second one would mix its checkpoints and outputs in.
     let _lock = FolderLock::take(out, RUN_LOCK, "the run folder")?;
     // Files of a run's names that no run left (a user's own mesh.obj, say) would be

@@ -1,0 +1,85 @@
+//! Time-resolved cases through the binary: `synth --arrival-fps` writes arrival maps the case
+//! reads back, a 2-view run checks each new branch against them (and a 3-view run does not), and
+//! malformed maps are refused naming the file.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+mod common;
+use common::{BIN, tmp};
+
+fn ctadsa(dir: &Path, args: &[&str]) -> Output {
+    Command::new(BIN).current_dir(dir).args(args).env("RUST_BACKTRACE", "0").output().unwrap()
+}
+
+fn ok(dir: &Path, args: &[&str]) -> String {
+    let out = ctadsa(dir, args);
+    assert!(out.status.success(), "`ctadsa {}`: {}", args.join(" "), String::from_utf8_lossy(&out.stderr));
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// `complete` on `case` with the quick config shrunk to a few steps, into `out`, with `views`.
+fn complete(dir: &Path, case: &str, out: &str, views: &str) -> serde_json::Value {
+    let config = concat!(env!("CARGO_MANIFEST_DIR"), "/../configs/quick.toml");
+    let mut args = vec!["complete", "--case", case, "--config", config, "--out", out];
+    let views = format!("run.views={views}");
+    for s in [
+        "run.iterations=6",
+        "init.n1=600",
+        "init.n2=300",
+        "densify.enabled=false",
+        "output.metric_samples=2000",
+        "run.prior_only_member=false",
+        &views,
+    ] {
+        args.extend(["--set", s]);
+    }
+    ok(dir, &args);
+    serde_json::from_slice(&std::fs::read(dir.join(out).join("summary.json")).unwrap()).unwrap()
+}
+
+#[test]
+fn arrival_maps_are_written_read_and_check_new_branches_in_two_views() {
+    let dir = tmp("arrival");
+    std::fs::create_dir_all(&dir).unwrap();
+    let synth = ["synth", "--out", "case", "--terminals", "16", "--detector-px", "96", "--binning", "2"];
+    ok(&dir, &[&synth[..], &["--voxel-mm", "0.6", "--arrival-fps", "7.5"]].concat());
+    let case: serde_json::Value = serde_json::from_slice(&std::fs::read(dir.join("case/case.json")).unwrap()).unwrap();
+    for view in case["views"].as_array().unwrap() {
+        let name = view["name"].as_str().unwrap();
+        assert_eq!(view["arrival"], format!("views/{name}-arrival.tiff"));
+        assert!(dir.join("case").join(view["arrival"].as_str().unwrap()).is_file());
+    }
+    // Two views: every new branch is checked (a share in branches.csv) and the summary counts
+    // the branches dropped; three views: none is.
+    for (views, checked) in [("[0,1]", true), ("[0,1,2]", false)] {
+        let out = format!("run-{}", views.len());
+        let summary = complete(&dir, "case", &out, views);
+        let dropped = &summary["centreline"]["arrival_dropped_branches"];
+        assert_eq!(dropped.is_u64(), checked, "{views}: {dropped}");
+        let csv = std::fs::read_to_string(dir.join(&out).join("branches.csv")).unwrap();
+        assert!(csv.lines().next().unwrap().ends_with(",arrival_agreement"));
+        for row in csv.lines().skip(1) {
+            let cells: Vec<&str> = row.split(',').collect();
+            let (new, agreement) = (cells[1] == "1", *cells.last().unwrap());
+            if new && checked {
+                let share: f64 = agreement.parse().unwrap();
+                assert!((0.0..=1.0).contains(&share), "{row}");
+            } else {
+                assert!(agreement.is_empty(), "{views}: {row}");
+            }
+        }
+    }
+    // Malformed maps: another size, a fractional frame; and --arrival-fps with a label volume.
+    let map = dir.join("case/views/ap-arrival.tiff");
+    let good = std::fs::read(&map).unwrap();
+    std::fs::copy(dir.join("case/views/ap.tiff"), &map).unwrap();
+    let out = ctadsa(&dir, &["complete", "--case", "case", "--out", "run-bad", "--set", "run.iterations=1"]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && stderr.contains("ap-arrival.tiff") && stderr.contains("whole frames"), "{stderr}");
+    std::fs::write(&map, good).unwrap();
+    let labels = concat!(env!("CARGO_MANIFEST_DIR"), "/../tests/data/topcow/topcow_ct_roi_003.nii.gz");
+    let out = ctadsa(&dir, &["synth", "--labels", labels, "--out", "labels", "--arrival-fps", "5"]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && stderr.contains("arrival maps") && stderr.contains("tree"), "{stderr}");
+}
