@@ -239,6 +239,14 @@ pub fn run(args: SynthArgs) -> Result<()> {
             summary.prior_thresholds_mm[0],
             summary.dir.display()
         ));
+        if let Some(a) = &cfg.arrival {
+            pb.suspend(|| {
+                println!(
+                    "{name}: arrival maps of a run at {} frames/s, contrast at {} mm/s (views/<view>-arrival.tiff)",
+                    a.frames_per_s, a.flow_mm_s
+                )
+            });
+        }
     }
     pb.finish_with_message("done");
     Ok(())
