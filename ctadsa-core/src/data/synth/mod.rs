@@ -584,8 +584,8 @@ pub fn synthesize(cfg: &SynthConfig, out: &Path, progress: &mut dyn FnMut(&str))
 }
 
 /// [`synthesize`], replacing an earlier case in `out`: once the new case's anatomy and views
-/// have passed their checks (a refused case leaves the old one as it was), [`remove_case`]
-/// clears the old case's files, so that no prior, view or picture of it remains.
+/// have passed their checks (a refused case leaves the old one as it was), the old case's files
+/// ([`CASE_OUTPUTS`], nothing else) are removed, so that no prior, view or picture of it remains.
 pub fn synthesize_replacing(cfg: &SynthConfig, out: &Path, progress: &mut dyn FnMut(&str)) -> Result<SynthSummary> {
     synthesize_into(cfg, out, true, progress)
 }
