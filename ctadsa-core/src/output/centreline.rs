@@ -150,7 +150,8 @@ pub fn completed_centreline(
 /// and `confidence.png` (new branches coloured by confidence, [`branch_confidence`] in `views`),
 /// and with a true tree scores the centreline, by confidence bin too, and draws
 /// `centreline.png` (true missing vessels found / missed, false new branches). New branches of
-/// confidence below `min_confidence` are left out of the written and scored centreline (not of
+/// confidence below `min_confidence`, or with `arrival` of arrival agreement below its minimum
+/// ([`crate::output::arrival`]), are left out of the written and scored centreline (not of
 /// `branches.csv`). Returns the summary and every node's confidence (of `tree`, all branches).
 pub fn write_centreline(
     dir: &Path,
