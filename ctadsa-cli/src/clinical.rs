@@ -117,6 +117,11 @@ pub struct ImportDsaArgs {
     /// Mirror the images top-bottom.
     #[arg(long)]
     flip_vertical: bool,
+    /// Also write each view's arrival map (per pixel, the frame its contrast arrives; frames of
+    /// the runs must be simultaneous, as a biplane system's are): 2-view runs use them to leave
+    /// ghosts out of the centreline (docs/DATA.md).
+    #[arg(long)]
+    arrival: bool,
     /// Prior surface mesh (OBJ/PLY/STL) already in the C-arm frame (mm, isocentre at 0).
     #[arg(long, conflicts_with = "labels")]
     prior: Option<PathBuf>,
@@ -150,6 +155,7 @@ pub fn import_dsa(args: ImportDsaArgs) -> Result<()> {
         binning: args.binning,
         flip_horizontal: args.flip_horizontal,
         flip_vertical: args.flip_vertical,
+        arrival: args.arrival,
     };
     let mut views: Vec<DsaView> = Vec::new();
     for (i, path) in args.runs.iter().enumerate() {

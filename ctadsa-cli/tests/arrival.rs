@@ -70,6 +70,39 @@ fn arrival_maps_are_written_read_and_check_new_branches_in_two_views() {
             }
         }
     }
+    // Through DICOM: export-dicom writes time-resolved runs (the contrast of each pixel turns on
+    // after its arrival), import-dsa --arrival derives the maps back: the same frames wherever
+    // the view shows a vessel, the frontal run mirrored and flipped back on the way.
+    ok(&dir, &["export-dicom", "--case", "case", "--out", "dicom", "--mirror-first"]);
+    let prior = "case/priors/d1p50mm/prior.obj";
+    ok(
+        &dir,
+        &[
+            "import-dsa",
+            "--run",
+            "dicom/ap.dcm",
+            "--run",
+            "dicom/lat.dcm",
+            "--prior",
+            prior,
+            "--arrival",
+            "--out",
+            "imported",
+        ],
+    );
+    for (source, imported) in [("ap", "0-ap"), ("lat", "1-lat")] {
+        let read = |p: &str| ctadsa_core::data::case::images::read_image(&dir.join(p), None).unwrap();
+        let (a, b) = (
+            read(&format!("case/views/{source}-arrival.tiff")),
+            read(&format!("imported/views/{imported}-arrival.tiff")),
+        );
+        let image = read(&format!("case/views/{source}.tiff"));
+        let vessel: Vec<usize> =
+            (0..image.data.len()).filter(|&i| a.data[i] >= 0.0 && image.data[i] > 0.1 * image.max()).collect();
+        assert!(vessel.len() > 50, "{source}: {} vessel pixels", vessel.len());
+        let same = vessel.iter().filter(|&&i| a.data[i] == b.data[i]).count();
+        assert_eq!(same, vessel.len(), "{source}: {same} of {} vessel pixels keep their frame", vessel.len());
+    }
     // Malformed maps: another size, a fractional frame; and --arrival-fps with a label volume.
     let map = dir.join("case/views/ap-arrival.tiff");
     let good = std::fs::read(&map).unwrap();

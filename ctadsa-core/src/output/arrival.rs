@@ -9,8 +9,7 @@ use ctadsa_render::ConeBeamView;
 use super::confidence::Branch;
 use crate::config::Config;
 use crate::data::case::Case;
-use crate::data::case::images::Image;
-use crate::data::synth::arrival::NO_ARRIVAL;
+use crate::data::case::images::{Image, bin_arrival};
 use crate::data::tree::VesselTree;
 use crate::error::Result;
 
@@ -22,29 +21,7 @@ const SAMPLE_MM: f64 = 0.1;
 pub fn run_arrival_maps(case: &Case, cfg: &Config) -> Result<Option<Vec<Image>>> {
     let case = if cfg.run.views.is_empty() { case.clone() } else { case.select_views(&cfg.run.views)? };
     let Some(maps) = case.arrival_maps()? else { return Ok(None) };
-    Ok(Some(maps.iter().map(|m| bin_earliest(m, cfg.run.image_binning.max(1))).collect()))
-}
-
-/// `map` binned by `b` (the image binning's block layout): the earliest frame of each block.
-fn bin_earliest(map: &Image, b: u32) -> Image {
-    if b <= 1 {
-        return map.clone();
-    }
-    let (w, h) = ((map.width / b).max(1), (map.height / b).max(1));
-    let mut data = vec![NO_ARRIVAL; (w * h) as usize];
-    for r in 0..h {
-        for c in 0..w {
-            let block = (0..b * b).map(|k| {
-                let (rr, cc) = ((r * b + k / b).min(map.height - 1), (c * b + k % b).min(map.width - 1));
-                map.data[(rr * map.width + cc) as usize]
-            });
-            let earliest = block.filter(|&f| f >= 0.0).fold(f32::INFINITY, f32::min);
-            if earliest.is_finite() {
-                data[(r * w + c) as usize] = earliest;
-            }
-        }
-    }
-    Image { width: w, height: h, data }
+    Ok(Some(maps.iter().map(|m| bin_arrival(m, cfg.run.image_binning.max(1))).collect()))
 }
 
 /// The frames of the 3 × 3 pixels around `view`'s projection of `p` that some vessel fills.
@@ -107,6 +84,7 @@ pub fn arrival_agreement(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::data::case::images::NO_ARRIVAL;
     use crate::data::synth::arrival::{ArrivalSpec, arrival_map};
     use crate::data::tree::{KIND_NEW_VESSEL, TreeNode};
     use ctadsa_render::TigreGeometry;
@@ -169,8 +147,8 @@ mod tests {
         assert!(arrival_agreement(&found, &branches, &three, &maps, 0.0).iter().all(Option::is_none));
         // Binning keeps the earliest frame of each block.
         let map = Image { width: 2, height: 2, data: vec![NO_ARRIVAL, 3.0, 2.0, NO_ARRIVAL] };
-        assert_eq!(bin_earliest(&map, 2).data, vec![2.0]);
+        assert_eq!(bin_arrival(&map, 2).data, vec![2.0]);
         let empty = Image { width: 2, height: 2, data: vec![NO_ARRIVAL; 4] };
-        assert_eq!(bin_earliest(&empty, 2).data, vec![NO_ARRIVAL]);
+        assert_eq!(bin_arrival(&empty, 2).data, vec![NO_ARRIVAL]);
     }
 }

@@ -152,6 +152,32 @@ pub fn write_rgb_or_grey(path: &Path, width: u32, height: u32, pixels: Vec<u8>, 
     write_file(path, &bytes)
 }
 
+/// Value of an arrival map's pixel ([`super::ViewEntry::arrival`]) that no vessel fills.
+pub const NO_ARRIVAL: f32 = -1.0;
+
+/// An arrival map binned by `b` in [`bin_image`]'s block layout: each block keeps its earliest
+/// frame ([`NO_ARRIVAL`] where no pixel of it fills).
+pub fn bin_arrival(map: &Image, b: u32) -> Image {
+    if b <= 1 {
+        return map.clone();
+    }
+    let (w, h) = ((map.width / b).max(1), (map.height / b).max(1));
+    let mut data = vec![NO_ARRIVAL; (w * h) as usize];
+    for r in 0..h {
+        for c in 0..w {
+            let block = (0..b * b).map(|k| {
+                let (rr, cc) = ((r * b + k / b).min(map.height - 1), (c * b + k % b).min(map.width - 1));
+                map.data[(rr * map.width + cc) as usize]
+            });
+            let earliest = block.filter(|&f| f >= 0.0).fold(f32::INFINITY, f32::min);
+            if earliest.is_finite() {
+                data[(r * w + c) as usize] = earliest;
+            }
+        }
+    }
+    Image { width: w, height: h, data }
+}
+
 /// Average-pools an image by `b × b` (line integrals keep their units).
 pub fn bin_image(img: &Image, b: u32) -> Image {
     if b <= 1 {

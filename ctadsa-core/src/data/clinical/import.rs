@@ -8,8 +8,8 @@ use glam::DVec3;
 
 use super::dsa::{Subtraction, average_frames, choose_frames, contrast_curve, max_intensity_projection, subtract};
 use super::xa::XaRun;
-use crate::data::case::images::bin_image;
 use crate::data::case::images::{Image, write_png16, write_tiff_f32};
+use crate::data::case::images::{NO_ARRIVAL, bin_arrival, bin_image};
 use crate::data::case::{
     CASE_FILE, CASE_FORMAT, CASE_VERSION, CaseFile, ImageValues, PriorEntry, Provenance, ViewEntry, ViewGeometry,
     VolumeEntry,
@@ -34,6 +34,8 @@ pub struct DsaOptions {
     /// Flip columns / rows in addition to what Patient Orientation (0020,0020) implies.
     pub flip_horizontal: bool,
     pub flip_vertical: bool,
+    /// Also derive the view's arrival map ([`arrival_from_frames`]) for a time-resolved case.
+    pub arrival: bool,
 }
 
 impl Default for DsaOptions {
@@ -46,6 +48,7 @@ impl Default for DsaOptions {
             binning: 1,
             flip_horizontal: false,
             flip_vertical: false,
+            arrival: false,
         }
     }
 }
@@ -62,6 +65,34 @@ pub struct DsaView {
     pub curve: Vec<f64>,
     /// What was done, for the case's provenance.
     pub notes: Vec<String>,
+    /// With [`DsaOptions::arrival`]: per pixel, the frame at which its contrast arrives.
+    pub arrival: Option<Image>,
+}
+
+/// A pixel counts as filled when its largest subtracted value over the run reaches this share
+/// of the MIP's 99.5th percentile.
+pub const ARRIVAL_MIN_SHARE: f32 = 0.05;
+
+/// Per pixel, the frame at which the contrast arrives, counted from the first frame after the
+/// last mask frame (0): the first frame whose subtracted value reaches half the pixel's largest;
+/// [`NO_ARRIVAL`] where that largest value stays under [`ARRIVAL_MIN_SHARE`] of the MIP's
+/// 99.5th percentile (no vessel).
+pub fn arrival_from_frames(subtracted: &[Vec<f32>], masks: &[usize], mip: &[f32]) -> Vec<f32> {
+    let first = masks.iter().max().map_or(0, |&m| m + 1);
+    let mut sorted: Vec<f32> = mip.iter().copied().filter(|v| *v > 0.0).collect();
+    sorted.sort_by(f32::total_cmp);
+    let p995 = sorted.get((sorted.len() as f64 * 0.995) as usize).or(sorted.last()).copied().unwrap_or(0.0);
+    let floor = ARRIVAL_MIN_SHARE * p995;
+    (0..mip.len())
+        .map(|i| {
+            let mut frames = subtracted.iter().skip(first).map(|f| f[i]);
+            let peak = frames.clone().fold(f32::NEG_INFINITY, f32::max);
+            if !(peak > 0.0 && peak >= floor) {
+                return NO_ARRIVAL;
+            }
+            frames.position(|v| v >= 0.5 * peak).map_or(NO_ARRIVAL, |k| k as f32)
+        })
+        .collect()
 }
 
 /// DICOM positioner angles → the renderer's TIGRE angles. DICOM: primary angle LAO positive
@@ -197,6 +228,11 @@ pub fn dsa_view(run: &XaRun, name: &str, o: &DsaOptions) -> Result<DsaView> {
         return Err(CoreError::format(path, format!("frames {frames:?} are all mask frames")));
     }
     let mip = max_intensity_projection(&chosen);
+    let arrival = o.arrival.then(|| Image {
+        width: run.columns,
+        height: run.rows,
+        data: arrival_from_frames(&subtracted, &masks, &mip),
+    });
     let image = Image { width: run.columns, height: run.rows, data: mip };
     image.check_finite(path)?;
     notes.push(format!(
@@ -221,12 +257,19 @@ pub fn dsa_view(run: &XaRun, name: &str, o: &DsaOptions) -> Result<DsaView> {
     let image = flip(&image, flip_h, flip_v);
     let b = o.binning.max(1);
     let image = bin_image(&image, b);
+    let arrival = arrival.map(|a| bin_arrival(&flip(&a, flip_h, flip_v), b));
+    if arrival.is_some() {
+        notes.push(format!(
+            "arrival map: per pixel the first frame at half its peak, counted from frame {} (0-based)",
+            masks.iter().max().map_or(0, |&m| m + 1)
+        ));
+    }
     let geometry = TigreGeometry {
         detector_px: [image.width, image.height],
         pixel_mm: [g.pixel_mm[0] * b as f64, g.pixel_mm[1] * b as f64],
         ..geometry
     };
-    Ok(DsaView { name: name.to_string(), image, geometry, mask_frames: masks, frames, curve, notes })
+    Ok(DsaView { name: name.to_string(), image, geometry, mask_frames: masks, frames, curve, notes, arrival })
 }
 
 /// The case's name for the view of run number `index` read from `path`: the index and the file
@@ -263,6 +306,8 @@ pub fn write_dsa_case(
         return Err(CoreError::invalid("every subtracted image is ≤ 0: no contrast found"));
     }
     let mut entries = Vec::new();
+    // Arrival maps for every view or none (a case's are all or nothing).
+    let timed = views.iter().all(|v| v.arrival.is_some());
     for v in views {
         entries.push(ViewEntry {
             name: v.name.clone(),
@@ -271,7 +316,7 @@ pub fn write_dsa_case(
             png_scale: Some(1.0),
             preview_png: Some(format!("views/{}.png", v.name)),
             geometry: ViewGeometry::from_tigre(&v.geometry),
-            arrival: None,
+            arrival: timed.then(|| format!("views/{}-arrival.tiff", v.name)),
         });
         notes.extend(v.notes.iter().cloned());
     }
@@ -320,6 +365,9 @@ pub fn write_dsa_case(
         let img = Image { data: v.image.data.iter().map(|x| x / max).collect(), ..v.image.clone() };
         write_tiff_f32(&out.join(&entry.image), &img)?;
         entry.png_scale = Some(write_png16(&out.join(format!("views/{}.png", v.name)), &img)?);
+        if let (Some(relative), Some(map)) = (&entry.arrival, &v.arrival) {
+            write_tiff_f32(&out.join(relative), map)?;
+        }
     }
     if let Some((mesh, _)) = prior {
         write_mesh(&out.join("prior/prior.obj"), mesh)?;

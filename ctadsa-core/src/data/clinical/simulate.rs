@@ -35,10 +35,41 @@ pub fn simulated_frames(line_integral: &Image, kappa: f32, mirror: bool) -> Vec<
         .collect()
 }
 
+/// The `frames` frames of a time-resolved run ([`crate::data::case::ViewEntry::arrival`]):
+/// frame 0 the mask; a pixel's contrast turns on (and stays) in the frame after its arrival
+/// (`arrival` 0 → frame 1; a pixel no vessel fills turns on in frame 1). Background and counts
+/// as [`simulated_frames`].
+pub fn simulated_timed_frames(
+    line_integral: &Image,
+    arrival: &Image,
+    frames: usize,
+    kappa: f32,
+    mirror: bool,
+) -> Vec<Vec<u16>> {
+    let (w, h) = (line_integral.width as usize, line_integral.height as usize);
+    (0..frames)
+        .map(|k| {
+            let mut f = vec![0u16; w * h];
+            for r in 0..h {
+                for col in 0..w {
+                    let i = r * w + col;
+                    let on = (arrival.data[i].max(0.0) as usize) < k;
+                    let background = 20_000.0 + 6_000.0 * ((r as f32 * 0.13).sin() * (col as f32 * 0.07).cos());
+                    let c = if on { 1.0 } else { 0.0 };
+                    let v = background * (-kappa * c * line_integral.data[i]).exp();
+                    f[if mirror { r * w + (w - 1 - col) } else { i }] = v.round().clamp(0.0, 65535.0) as u16;
+                }
+            }
+            f
+        })
+        .collect()
+}
+
 /// The largest peak attenuation (κ × the largest line integral) [`simulated_case_runs`] takes.
 pub const MAX_PEAK_ATTENUATION: f32 = 5.0;
 
-/// Simulated DSA runs of every view of a case (TIGRE geometry without detector offsets), one
+/// Simulated DSA runs of every view of a case (TIGRE geometry without detector offsets;
+/// time-resolved, [`simulated_timed_frames`], when the case has arrival maps), one
 /// study per case and one series per view, with the contrast's peak attenuation
 /// `peak_attenuation` (κ × the largest line integral). `mirror_first` stores the first (frontal)
 /// run mirrored with Patient Orientation `L\F`, as a viewer facing the patient sees it. Returns
@@ -55,6 +86,12 @@ pub fn simulated_case_runs(case: &Case, peak_attenuation: f32, mirror_first: boo
     if !(max > 0.0) {
         return Err(CoreError::format(&case.dir, "every image is 0: nothing to simulate"));
     }
+    let arrivals = case.arrival_maps()?;
+    // Both planes of a biplane run record the same frames: the mask, one per arrival frame of
+    // any view, and two more.
+    let frames = arrivals
+        .as_ref()
+        .map_or(0, |maps| maps.iter().flat_map(|m| m.data.iter().copied()).fold(0.0f32, f32::max) as usize + 3);
     let mut runs = Vec::new();
     for (i, (entry, img)) in case.file.views.iter().zip(&case.images).enumerate() {
         let ViewGeometry::Tigre { dsd_mm, dso_mm, detector_px, pixel_mm, offset_mm, primary_deg, secondary_deg } =
@@ -74,6 +111,9 @@ pub fn simulated_case_runs(case: &Case, peak_attenuation: f32, mirror_first: boo
         let g = TigreGeometry { dsd_mm, dso_mm, detector_px, pixel_mm, offset_mm, primary_deg, secondary_deg };
         let mirror = mirror_first && i == 0;
         let mut spec = simulated_run(img, &g, peak_attenuation / max, mirror);
+        if let Some(maps) = &arrivals {
+            spec.frames = simulated_timed_frames(img, &maps[i], frames, peak_attenuation / max, mirror);
+        }
         if mirror {
             spec.patient_orientation = Some(["L".into(), "F".into()]);
         }

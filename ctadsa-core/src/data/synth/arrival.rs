@@ -6,12 +6,9 @@
 use ctadsa_render::ConeBeamView;
 use serde::{Deserialize, Serialize};
 
-use crate::data::case::images::Image;
+use crate::data::case::images::{Image, NO_ARRIVAL};
 use crate::data::tree::VesselTree;
 use crate::error::{CoreError, Result};
-
-/// Value of an arrival map's pixel that no vessel fills.
-pub const NO_ARRIVAL: f32 = -1.0;
 
 /// Step (mm) between the points sampled along each segment.
 const SAMPLE_MM: f64 = 0.1;
