@@ -17,22 +17,7 @@ pub const BOLUS: [f32; 8] = [0.0, 0.1, 0.4, 0.9, 1.0, 0.7, 0.3, 0.1];
 /// 14,000–26,000 counts) and `c(t)` = [`BOLUS`], as 16-bit counts. `mirror` stores the frames
 /// left-right mirrored (as a viewer facing the patient sees a frontal run).
 pub fn simulated_frames(line_integral: &Image, kappa: f32, mirror: bool) -> Vec<Vec<u16>> {
-    let (w, h) = (line_integral.width as usize, line_integral.height as usize);
-    BOLUS
-        .iter()
-        .map(|&c| {
-            let mut f = vec![0u16; w * h];
-            for r in 0..h {
-                for col in 0..w {
-                    let i = r * w + col;
-                    let background = 20_000.0 + 6_000.0 * ((r as f32 * 0.13).sin() * (col as f32 * 0.07).cos());
-                    let v = background * (-kappa * c * line_integral.data[i]).exp();
-                    f[if mirror { r * w + (w - 1 - col) } else { i }] = v.round().clamp(0.0, 65535.0) as u16;
-                }
-            }
-            f
-        })
-        .collect()
+    BOLUS.iter().map(|&c| frame(line_integral, kappa, mirror, |_| c)).collect()
 }
 
 /// The `frames` frames of a time-resolved run ([`crate::data::case::ViewEntry::arrival`]):
@@ -46,23 +31,27 @@ pub fn simulated_timed_frames(
     kappa: f32,
     mirror: bool,
 ) -> Vec<Vec<u16>> {
-    let (w, h) = (line_integral.width as usize, line_integral.height as usize);
     (0..frames)
         .map(|k| {
-            let mut f = vec![0u16; w * h];
-            for r in 0..h {
-                for col in 0..w {
-                    let i = r * w + col;
-                    let on = (arrival.data[i].max(0.0) as usize) < k;
-                    let background = 20_000.0 + 6_000.0 * ((r as f32 * 0.13).sin() * (col as f32 * 0.07).cos());
-                    let c = if on { 1.0 } else { 0.0 };
-                    let v = background * (-kappa * c * line_integral.data[i]).exp();
-                    f[if mirror { r * w + (w - 1 - col) } else { i }] = v.round().clamp(0.0, 65535.0) as u16;
-                }
-            }
-            f
+            frame(line_integral, kappa, mirror, |i| if (arrival.data[i].max(0.0) as usize) < k { 1.0 } else { 0.0 })
         })
         .collect()
+}
+
+/// One frame: `I0 · exp(−κ c_i L_i)` over the textured background, pixel `i`'s contrast
+/// `c_i = contrast(i)`, as 16-bit counts (mirrored left-right with `mirror`).
+fn frame(line_integral: &Image, kappa: f32, mirror: bool, contrast: impl Fn(usize) -> f32) -> Vec<u16> {
+    let (w, h) = (line_integral.width as usize, line_integral.height as usize);
+    let mut f = vec![0u16; w * h];
+    for r in 0..h {
+        for col in 0..w {
+            let i = r * w + col;
+            let background = 20_000.0 + 6_000.0 * ((r as f32 * 0.13).sin() * (col as f32 * 0.07).cos());
+            let v = background * (-kappa * contrast(i) * line_integral.data[i]).exp();
+            f[if mirror { r * w + (w - 1 - col) } else { i }] = v.round().clamp(0.0, 65535.0) as u16;
+        }
+    }
+    f
 }
 
 /// The largest peak attenuation (κ × the largest line integral) [`simulated_case_runs`] takes.
