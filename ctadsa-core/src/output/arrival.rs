@@ -9,7 +9,7 @@ use ctadsa_render::ConeBeamView;
 use super::confidence::Branch;
 use crate::config::Config;
 use crate::data::case::Case;
-use crate::data::case::images::{Image, bin_arrival};
+use crate::data::case::images::{Image, NO_ARRIVAL, bin_arrival};
 use crate::data::tree::VesselTree;
 use crate::error::Result;
 
@@ -24,20 +24,16 @@ pub fn run_arrival_maps(case: &Case, cfg: &Config) -> Result<Option<Vec<Image>>>
     Ok(Some(maps.iter().map(|m| bin_arrival(m, cfg.run.image_binning.max(1))).collect()))
 }
 
-/// The frames of the 3 × 3 pixels around `view`'s projection of `p` that some vessel fills.
-fn frames_around(view: &ConeBeamView, map: &Image, p: glam::DVec3) -> Vec<f32> {
-    let Some(uv) = view.project(p) else { return Vec::new() };
+/// The frames of the 3 × 3 pixels around `view`'s projection of `p` (a pixel no vessel fills,
+/// or off the detector, is [`NO_ARRIVAL`]).
+fn frames_around(view: &ConeBeamView, map: &Image, p: glam::DVec3) -> [f32; 9] {
+    let mut out = [NO_ARRIVAL; 9];
+    let Some(uv) = view.project(p) else { return out };
     let (u, v) = (uv.x.round() as i64, uv.y.round() as i64);
-    let mut out = Vec::with_capacity(9);
-    for dv in -1..=1 {
-        for du in -1..=1 {
-            let (c, r) = (u + du, v + dv);
-            if c >= 0 && r >= 0 && c < map.width as i64 && r < map.height as i64 {
-                let f = map.data[r as usize * map.width as usize + c as usize];
-                if f >= 0.0 {
-                    out.push(f);
-                }
-            }
+    for (k, slot) in out.iter_mut().enumerate() {
+        let (c, r) = (u + k as i64 % 3 - 1, v + k as i64 / 3 - 1);
+        if c >= 0 && r >= 0 && c < map.width as i64 && r < map.height as i64 {
+            *slot = map.data[r as usize * map.width as usize + c as usize];
         }
     }
     out
@@ -69,7 +65,11 @@ pub fn arrival_agreement(
                     let p = a.lerp(z, (k as f64 + 0.5) / n as f64);
                     let (first, second) =
                         (frames_around(&views[0], &maps[0], p), frames_around(&views[1], &maps[1], p));
-                    let same = first.iter().any(|f| second.iter().any(|g| (f - g).abs() <= tolerance_frames));
+                    let filled = |f: &&f32| **f >= 0.0;
+                    let same = first
+                        .iter()
+                        .filter(filled)
+                        .any(|f| second.iter().filter(filled).any(|g| (f - g).abs() <= tolerance_frames));
                     total += length / n as f64;
                     if same {
                         agree += length / n as f64;
@@ -84,7 +84,6 @@ pub fn arrival_agreement(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::data::case::images::NO_ARRIVAL;
     use crate::data::synth::arrival::{ArrivalSpec, arrival_map};
     use crate::data::tree::{KIND_NEW_VESSEL, TreeNode};
     use ctadsa_render::TigreGeometry;

@@ -17,6 +17,7 @@ use crate::data::case::{
 use crate::data::mesh::TriMesh;
 use crate::data::mesh::io::write_mesh;
 use crate::error::{CoreError, Result};
+use crate::stats::percentile;
 
 /// How a run becomes one view image.
 #[derive(Debug, Clone, PartialEq)]
@@ -69,6 +70,11 @@ pub struct DsaView {
     pub arrival: Option<Image>,
 }
 
+/// The first frame after the last mask frame (frame 0 of an arrival map).
+fn first_after_masks(masks: &[usize]) -> usize {
+    masks.iter().max().map_or(0, |&m| m + 1)
+}
+
 /// A pixel counts as filled when its largest subtracted value over the run reaches this share
 /// of the MIP's 99.5th percentile.
 pub const ARRIVAL_MIN_SHARE: f32 = 0.05;
@@ -78,11 +84,9 @@ pub const ARRIVAL_MIN_SHARE: f32 = 0.05;
 /// [`NO_ARRIVAL`] where that largest value stays under [`ARRIVAL_MIN_SHARE`] of the MIP's
 /// 99.5th percentile (no vessel).
 pub fn arrival_from_frames(subtracted: &[Vec<f32>], masks: &[usize], mip: &[f32]) -> Vec<f32> {
-    let first = masks.iter().max().map_or(0, |&m| m + 1);
-    let mut sorted: Vec<f32> = mip.iter().copied().filter(|v| *v > 0.0).collect();
-    sorted.sort_by(f32::total_cmp);
-    let p995 = sorted.get((sorted.len() as f64 * 0.995) as usize).or(sorted.last()).copied().unwrap_or(0.0);
-    let floor = ARRIVAL_MIN_SHARE * p995;
+    let first = first_after_masks(masks);
+    let positive: Vec<f64> = mip.iter().filter(|v| **v > 0.0).map(|&v| v as f64).collect();
+    let floor = ARRIVAL_MIN_SHARE * if positive.is_empty() { 0.0 } else { percentile(&positive, 99.5) as f32 };
     (0..mip.len())
         .map(|i| {
             let mut frames = subtracted.iter().skip(first).map(|f| f[i]);
@@ -261,7 +265,7 @@ pub fn dsa_view(run: &XaRun, name: &str, o: &DsaOptions) -> Result<DsaView> {
     if arrival.is_some() {
         notes.push(format!(
             "arrival map: per pixel the first frame at half its peak, counted from frame {} (0-based)",
-            masks.iter().max().map_or(0, |&m| m + 1)
+            first_after_masks(&masks)
         ));
     }
     let geometry = TigreGeometry {
