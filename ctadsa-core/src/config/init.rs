@@ -141,6 +141,13 @@ pub struct InitConfig {
     pub track_fit_prior_projection: Option<bool>,
     /// `prior_dilation_px` for the tracker's residual (absent: as the image seeds').
     pub track_prior_dilation_px: Option<u32>,
+    /// With two views whose arrival maps the case has (a time-resolved run,
+    /// [`crate::data::case::ViewEntry::arrival`]): keep only the image seeds whose two pixels
+    /// (3 × 3 around each) filled within `arrival_tolerance_frames` of each other
+    /// ([`crate::method::arrival`]): the ghosts where two vessels cross fill at two times.
+    pub arrival_seeds: bool,
+    /// Frames by which the two views' arrivals at an image seed may differ and still agree.
+    pub arrival_tolerance_frames: f64,
 }
 
 impl InitConfig {
@@ -190,6 +197,8 @@ impl Default for InitConfig {
             seed_spacing_mm: 0.0,
             n2_two_views: None,
             seed_spacing_mm_two_views: None,
+            arrival_seeds: false,
+            arrival_tolerance_frames: 0.0,
         }
     }
 }

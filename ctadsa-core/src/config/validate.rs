@@ -218,6 +218,11 @@ impl Config {
             "must be in [0, 1]",
         )?;
         check(
+            (0.0..=1000.0).contains(&self.init.arrival_tolerance_frames),
+            "init.arrival_tolerance_frames",
+            "must be in [0, 1000]",
+        )?;
+        check(
             (0.0..=1000.0).contains(&self.output.arrival_tolerance_frames),
             "output.arrival_tolerance_frames",
             "must be in [0, 1000]",

@@ -39,6 +39,7 @@ use crate::eval::metrics::nearest_distances;
 use crate::eval::new_surface::{NewSurface, new_surface};
 use crate::eval::score::CaseTruth;
 use crate::eval::surface_metrics::{RECALL_SLACK_MM, centreline_points};
+use crate::method::arrival::run_arrival_maps;
 use crate::method::init::initialise;
 use crate::method::model::ScaleBounds;
 use crate::method::train::{prepare_views, run_working_box};
@@ -353,7 +354,18 @@ fn seeds_of(case: &Case, cfg: &Config) -> Result<Seeding> {
     models.extend(cfg.prior_only_member().filter(|m| m.init.n2_mode != SeedMode::None));
     let mut seeds: Vec<DVec3> = Vec::new();
     for m in &models {
-        let init = initialise(&m.init, views.views(), &images, prior.as_ref(), &working_box, h, bounds, m.run.seed)?;
+        let arrival = if m.init.arrival_seeds { run_arrival_maps(case, m)? } else { None };
+        let init = initialise(
+            &m.init,
+            views.views(),
+            &images,
+            prior.as_ref(),
+            &working_box,
+            h,
+            bounds,
+            m.run.seed,
+            arrival.as_deref(),
+        )?;
         seeds.extend(
             init.gaussians.means[3 * init.n1..]
                 .chunks_exact(3)

@@ -36,6 +36,7 @@ use crate::data::projector::matched::{BLUR_SIGMAS_PX, OFFSETS_MM, fit_mesh_proje
 use crate::data::projector::mesh::mesh_chords;
 use crate::data::volume::{BoxMm, Grid, Volume};
 use crate::error::{CoreError, Result};
+use crate::method::arrival::arrives_together;
 use crate::method::model::{GaussianInit, ScaleBounds};
 use crate::method::seed_growth::grow_from;
 use crate::method::tracking::{Residuals, TrackSettings, track_from_prior};
@@ -122,6 +123,7 @@ pub fn n2_seeds(
     bounds: &BoxMm,
     voxel_mm: f64,
     seed: u64,
+    arrival: Option<&[Image]>,
 ) -> Result<Vec<DVec3>> {
     let n2 = cfg.n2_for(views.len());
     // With `n2 = 0` the tracked seeds alone (the prior-only member's, `run.member_tracks_max_views`).
@@ -205,6 +207,10 @@ pub fn n2_seeds(
     let Some(Residual { support, occluded, mut scored, .. }) = seeding else {
         return Ok(tracked);
     };
+    if let Some(maps) = arrival.filter(|m| cfg.arrival_seeds && views.len() == 2 && m.len() == 2) {
+        let tolerance = cfg.arrival_tolerance_frames as f32;
+        scored = scored.into_par_iter().filter(|(_, c, _)| arrives_together(views, maps, *c, tolerance)).collect();
+    }
     // Not for the mask-only mode, which ignores the prior by design.
     let (mut spacing_mm, mut n) = (cfg.seed_spacing_mm_for(views.len()), n2);
     if let Some(s) = exclude {
@@ -463,6 +469,7 @@ pub fn initialise(
     voxel_mm: f64,
     scale_bounds: ScaleBounds,
     seed: u64,
+    arrival: Option<&[Image]>,
 ) -> Result<Initialisation> {
     let mut centres: Vec<DVec3> = Vec::new();
     let use_prior = cfg.n2_mode != SeedMode::AllViewsIntersect;
@@ -471,7 +478,7 @@ pub fn initialise(
         centres.extend(sample_surface(p, cfg.n1, seed));
     }
     let n1 = centres.len();
-    centres.extend(n2_seeds(cfg, views, images, prior.filter(|_| use_prior), bounds, voxel_mm, seed)?);
+    centres.extend(n2_seeds(cfg, views, images, prior.filter(|_| use_prior), bounds, voxel_mm, seed, arrival)?);
     let n2 = centres.len() - n1;
     if centres.is_empty() {
         return Err(CoreError::invalid("initialisation produced no Gaussian (empty prior and no image support)"));
@@ -549,7 +556,7 @@ pub(crate) mod tests {
         let (prior, views, images, bounds) = scene();
         // The missed vessel here floats 3.8 mm from the prior: no connectivity filter.
         let cfg = InitConfig { n2: 300, prior_dilation_px: 1, connected_to_prior_mm: 0.0, ..InitConfig::default() };
-        let seeds = n2_seeds(&cfg, &views, &images, Some(&prior), &bounds, 0.4, 7).unwrap();
+        let seeds = n2_seeds(&cfg, &views, &images, Some(&prior), &bounds, 0.4, 7, None).unwrap();
         assert!(seeds.len() >= 50, "only {} seeds", seeds.len());
         let on_missing = seeds.iter().filter(|p| to_segment(**p, MISSING.0, MISSING.1) < 1.5).count();
         let on_prior = seeds.iter().filter(|p| to_segment(**p, PRIOR.0, PRIOR.1) < 1.2).count();
@@ -580,7 +587,7 @@ pub(crate) mod tests {
                 occluded_connected: connected,
                 ..InitConfig::default()
             };
-            n2_seeds(&cfg, &views, &images, Some(&prior), &bounds, 0.4, 7).unwrap()
+            n2_seeds(&cfg, &views, &images, Some(&prior), &bounds, 0.4, 7, None).unwrap()
         };
         let on =
             |seeds: &[DVec3], s: ([f64; 3], [f64; 3])| seeds.iter().filter(|p| to_segment(**p, s.0, s.1) < 1.0).count();
@@ -600,7 +607,7 @@ pub(crate) mod tests {
         assert!(on(&unfiltered, far) > 10, "the far one too without the connection test");
         assert_eq!(on(&with, far), 0, "the far one connects to nothing: dropped");
         let cfg = InitConfig { n2: 3000, prior_dilation_px: 1, occluded_views_support: true, ..InitConfig::default() };
-        let two = n2_seeds(&cfg, &views[..2], &images[..2], Some(&prior), &bounds, 0.4, 7).unwrap();
+        let two = n2_seeds(&cfg, &views[..2], &images[..2], Some(&prior), &bounds, 0.4, 7, None).unwrap();
         assert_eq!(on(&two, near), 0, "not applied below occluded_min_views");
     }
 
@@ -618,7 +625,7 @@ pub(crate) mod tests {
         let leaving = ([2.0, 0.0, 0.5], [6.0, 4.0, 11.0]);
         let (prior, images) = prior_and_images(PRIOR, &[leaving], &views[..2], &bounds);
         let cfg = tracks_only();
-        let seeds = n2_seeds(&cfg, &views[..2], &images, Some(&prior), &bounds, 0.4, 7).unwrap();
+        let seeds = n2_seeds(&cfg, &views[..2], &images, Some(&prior), &bounds, 0.4, 7, None).unwrap();
         let on = seeds.iter().filter(|p| to_segment(**p, leaving.0, leaving.1) < 1.5).count();
         eprintln!("{on} of {} tracked seeds on the vessel", seeds.len());
         assert!(seeds.len() >= 10, "only {} seeds", seeds.len());
@@ -627,7 +634,7 @@ pub(crate) mod tests {
         // the vessel, and what the undilated projection leaves along the prior's edge is tracked
         // too, beside the prior and nowhere else.
         let fitted = InitConfig { fit_prior_projection: true, prior_dilation_px: 0, ..cfg.clone() };
-        let seeds_fitted = n2_seeds(&fitted, &views[..2], &images, Some(&prior), &bounds, 0.4, 7).unwrap();
+        let seeds_fitted = n2_seeds(&fitted, &views[..2], &images, Some(&prior), &bounds, 0.4, 7, None).unwrap();
         let (on_vessel, off): (Vec<DVec3>, Vec<DVec3>) =
             seeds_fitted.iter().partition(|p| to_segment(**p, leaving.0, leaving.1) < 1.5);
         eprintln!("fitted: {} of {} tracked seeds on the vessel", on_vessel.len(), seeds_fitted.len());
@@ -635,9 +642,9 @@ pub(crate) mod tests {
         let beside_prior = |p: &DVec3| to_segment(*p, PRIOR.0, PRIOR.1) < 2.5;
         assert!(off.iter().all(beside_prior), "off the vessel and away from the prior: {off:?}");
         let off = InitConfig { track_max_views: 0, ..cfg.clone() };
-        assert!(n2_seeds(&off, &views[..2], &images, Some(&prior), &bounds, 0.4, 7).unwrap().is_empty());
+        assert!(n2_seeds(&off, &views[..2], &images, Some(&prior), &bounds, 0.4, 7, None).unwrap().is_empty());
         let (_, three_images) = prior_and_images(PRIOR, &[leaving], &views, &bounds);
-        let three_views = n2_seeds(&cfg, &views, &three_images, Some(&prior), &bounds, 0.4, 7);
+        let three_views = n2_seeds(&cfg, &views, &three_images, Some(&prior), &bounds, 0.4, 7, None);
         assert!(three_views.unwrap().is_empty(), "more views than track_max_views: none");
     }
 
@@ -648,7 +655,8 @@ pub(crate) mod tests {
         let (_, views, _, bounds) = scene();
         let leaving = ([2.0, 0.0, 0.5], [6.0, 4.0, 11.0]);
         let (prior, images) = prior_and_images(PRIOR, &[leaving], &views[..2], &bounds);
-        let seeds = |cfg: &InitConfig| n2_seeds(cfg, &views[..2], &images, Some(&prior), &bounds, 0.4, 7).unwrap();
+        let seeds =
+            |cfg: &InitConfig| n2_seeds(cfg, &views[..2], &images, Some(&prior), &bounds, 0.4, 7, None).unwrap();
         let base = tracks_only();
         let fitted = InitConfig { fit_prior_projection: true, prior_dilation_px: 0, ..base.clone() };
         let own =
@@ -673,7 +681,7 @@ pub(crate) mod tests {
     fn mask_intersection_seeds_both_vessels_and_the_count_is_capped() {
         let (_, views, images, bounds) = scene();
         let cfg = InitConfig { n2: 400, n2_mode: SeedMode::AllViewsIntersect, ..InitConfig::default() };
-        let seeds = n2_seeds(&cfg, &views, &images, None, &bounds, 0.4, 7).unwrap();
+        let seeds = n2_seeds(&cfg, &views, &images, None, &bounds, 0.4, 7, None).unwrap();
         assert!(seeds.len() <= 400);
         let near = |p: &DVec3| to_segment(*p, MISSING.0, MISSING.1) < 1.5 || to_segment(*p, PRIOR.0, PRIOR.1) < 2.0;
         let good = seeds.iter().filter(|p| near(p)).count();
@@ -690,10 +698,58 @@ pub(crate) mod tests {
             n2_mode: SeedMode::AllViewsIntersect,
             ..InitConfig::default()
         };
-        let three = n2_seeds(&cfg, &views, &images, None, &bounds, 0.4, 7).unwrap();
-        let two = n2_seeds(&cfg, &views[..2], &images[..2], None, &bounds, 0.4, 7).unwrap();
+        let three = n2_seeds(&cfg, &views, &images, None, &bounds, 0.4, 7, None).unwrap();
+        let two = n2_seeds(&cfg, &views[..2], &images[..2], None, &bounds, 0.4, 7, None).unwrap();
         assert!(views.len() >= 3 && three.len() > 50, "{} seeds with {} views", three.len(), views.len());
         assert_eq!(two.len(), 50);
+    }
+
+    /// Two vertical vessels filled in opposite directions, A from z = −12 mm up and B from
+    /// z = +12 mm down, seen in two views: their back-projections cross in two ghosts, which pair
+    /// A's image in one view with B's in the other and so fill at other frames than either vessel.
+    #[test]
+    fn arrival_maps_drop_the_ghosts_of_two_views_and_keep_the_vessels() {
+        use crate::data::synth::arrival::{ArrivalSpec, arrival_map};
+        use crate::data::tree::{TreeNode, VesselTree};
+        const A: ([f64; 3], [f64; 3]) = ([0.0, 0.0, -12.0], [0.0, 0.0, 12.0]);
+        const B: ([f64; 3], [f64; 3]) = ([8.0, 8.0, 12.0], [8.0, 8.0, -12.0]);
+        const GHOSTS: [([f64; 3], [f64; 3]); 2] =
+            [([0.0, 8.0, -12.0], [0.0, 8.0, 12.0]), ([8.0, 0.0, -12.0], [8.0, 0.0, 12.0])];
+        let (_, views, _, bounds) = scene();
+        let views = &views[..2];
+        let (_, images) = prior_and_images(A, &[B], views, &bounds);
+        let node = |id, parent, p| TreeNode { id, kind: 0, position_mm: DVec3::from(p), radius_mm: 0.6, parent };
+        let tree = VesselTree {
+            nodes: vec![node(1, None, A.0), node(2, Some(0), A.1), node(3, None, B.0), node(4, Some(2), B.1)],
+        };
+        let spec = ArrivalSpec { frames_per_s: 10.0, flow_mm_s: 50.0 };
+        let maps: Vec<Image> = views.iter().map(|v| arrival_map(&tree, v, &spec)).collect();
+        // Every supported voxel a seed (the count is not the question here).
+        let cfg = InitConfig { n2: 100_000, n2_mode: SeedMode::AllViewsIntersect, ..InitConfig::default() };
+        let seeds = |cfg: &InitConfig| n2_seeds(cfg, views, &images, None, &bounds, 0.4, 7, Some(&maps)).unwrap();
+        let ghosts = |s: &[DVec3]| GHOSTS.iter().map(|&g| seeds_on(s, g)).sum::<usize>();
+        // Vessel seeds near the centre line (the synthetic maps mark the centre lines' pixels).
+        let near = |s: &[DVec3], v: ([f64; 3], [f64; 3])| s.iter().filter(|p| to_segment(**p, v.0, v.1) < 0.5).count();
+        let vessels = |s: &[DVec3]| near(s, A) + near(s, B);
+        let (all, checked) = (seeds(&cfg), seeds(&InitConfig { arrival_seeds: true, ..cfg.clone() }));
+        eprintln!(
+            "ghost seeds {} -> {}, vessel seeds {} -> {}",
+            ghosts(&all),
+            ghosts(&checked),
+            vessels(&all),
+            vessels(&checked)
+        );
+        assert!(ghosts(&all) >= 50 && vessels(&all) >= 50, "the scene has ghosts and vessels to seed: {all:?}");
+        assert!(3 * ghosts(&checked) <= ghosts(&all), "ghost seeds {} -> {}", ghosts(&all), ghosts(&checked));
+        assert!(10 * vessels(&checked) >= 9 * vessels(&all), "vessel seeds {} -> {}", vessels(&all), vessels(&checked));
+        // Three views are not checked (the third view rejects the ghosts), nor are runs without maps.
+        let three = InitConfig { arrival_seeds: true, ..cfg.clone() };
+        let (_, all_views, _, _) = scene();
+        let (_, three_images) = prior_and_images(A, &[B], &all_views, &bounds);
+        let with_maps = n2_seeds(&three, &all_views, &three_images, None, &bounds, 0.4, 7, Some(&maps)).unwrap();
+        let without = n2_seeds(&cfg, &all_views, &three_images, None, &bounds, 0.4, 7, None).unwrap();
+        assert_eq!(with_maps, without);
+        assert_eq!(n2_seeds(&three, views, &images, None, &bounds, 0.4, 7, None).unwrap(), all);
     }
 
     /// A branch leaving the prior and a vessel floating free of it.
@@ -726,7 +782,7 @@ pub(crate) mod tests {
                 occluded_views_support: false,
                 ..InitConfig::default()
             };
-            n2_seeds(&cfg, &views, &images, Some(&prior), &bounds, 0.4, 7).unwrap()
+            n2_seeds(&cfg, &views, &images, Some(&prior), &bounds, 0.4, 7, None).unwrap()
         };
         let seeds_with = |reach: f64| seeds_up_to(reach, 3);
         let on = seeds_on;
@@ -751,7 +807,7 @@ pub(crate) mod tests {
                 grow_claims_spacing_mm: 0.4,
                 ..InitConfig::default()
             };
-            n2_seeds(&cfg, &views[..n_views], &images[..n_views], Some(&prior), &bounds, 0.4, 7).unwrap()
+            n2_seeds(&cfg, &views[..n_views], &images[..n_views], Some(&prior), &bounds, 0.4, 7, None).unwrap()
         };
         let on = seeds_on;
         let grown = seeds(2, 50.0);
@@ -784,7 +840,7 @@ pub(crate) mod tests {
         let (views, images) = (&views[..2], &images[..2]);
         let seeds = |subtract_prior: bool| {
             let cfg = InitConfig { n2: 3000, prior_dilation_px: 1, subtract_prior, ..InitConfig::default() };
-            n2_seeds(&cfg, views, images, Some(&prior), &bounds, 0.4, 7).unwrap()
+            n2_seeds(&cfg, views, images, Some(&prior), &bounds, 0.4, 7, None).unwrap()
         };
         let (off, on) = (seeds(false), seeds(true));
         let on_hidden = |s: &[DVec3]| s.iter().filter(|p| to_segment(**p, hidden[0].0, hidden[0].1) < 1.5).count();

@@ -3,6 +3,7 @@
 //! loop. The differentiable ops it is built from (hash encoding, fused linear layers, blur, SSIM,
 //! the anchor search, Adam) are `ctadsa_ops`.
 
+pub mod arrival;
 pub mod densify;
 pub mod field_health;
 pub mod init;

@@ -1,43 +1,15 @@
-//! The contrast's arrival time as a check of new vessels seen in two views. A time-resolved
-//! biplane run images the bolus in both planes at the same instants, so each pixel has the frame
-//! at which the first vessel along its ray fills ([`crate::data::case::ViewEntry::arrival`]). A
-//! vessel found in 3-D fills at one time in both views; a ghost, which pairs one vessel's image
-//! in one view with another's in the other, shows two different times.
+//! The contrast's arrival time as a check of new centreline branches seen in two views
+//! ([`crate::method::arrival`] says why it tells vessels from ghosts).
 
 use ctadsa_render::ConeBeamView;
 
 use super::confidence::Branch;
-use crate::config::Config;
-use crate::data::case::Case;
-use crate::data::case::images::{Image, NO_ARRIVAL, bin_arrival};
+use crate::data::case::images::Image;
 use crate::data::tree::VesselTree;
-use crate::error::Result;
+use crate::method::arrival::{frames_agree, frames_around};
 
 /// Step (mm) between the points of a branch that are checked.
 const SAMPLE_MM: f64 = 0.1;
-
-/// The arrival maps of a run's views (its `run.views`, binned by `run.image_binning`: a binned
-/// pixel keeps the earliest frame of its block), when the case has one for every view.
-pub fn run_arrival_maps(case: &Case, cfg: &Config) -> Result<Option<Vec<Image>>> {
-    let case = if cfg.run.views.is_empty() { case.clone() } else { case.select_views(&cfg.run.views)? };
-    let Some(maps) = case.arrival_maps()? else { return Ok(None) };
-    Ok(Some(maps.iter().map(|m| bin_arrival(m, cfg.run.image_binning.max(1))).collect()))
-}
-
-/// The frames of the 3 × 3 pixels around `view`'s projection of `p` (a pixel no vessel fills,
-/// or off the detector, is [`NO_ARRIVAL`]).
-fn frames_around(view: &ConeBeamView, map: &Image, p: glam::DVec3) -> [f32; 9] {
-    let mut out = [NO_ARRIVAL; 9];
-    let Some(uv) = view.project(p) else { return out };
-    let (u, v) = (uv.x.round() as i64, uv.y.round() as i64);
-    for (k, slot) in out.iter_mut().enumerate() {
-        let (c, r) = (u + k as i64 % 3 - 1, v + k as i64 / 3 - 1);
-        if c >= 0 && r >= 0 && c < map.width as i64 && r < map.height as i64 {
-            *slot = map.data[r as usize * map.width as usize + c as usize];
-        }
-    }
-    out
-}
 
 /// For each new branch of `tree` in a run of two views: the share (0–1) of its length whose
 /// projections into the two views lie on pixels (3 × 3 around each) filled in frames within
@@ -65,11 +37,7 @@ pub fn arrival_agreement(
                     let p = a.lerp(z, (k as f64 + 0.5) / n as f64);
                     let (first, second) =
                         (frames_around(&views[0], &maps[0], p), frames_around(&views[1], &maps[1], p));
-                    let filled = |f: &&f32| **f >= 0.0;
-                    let same = first
-                        .iter()
-                        .filter(filled)
-                        .any(|f| second.iter().filter(filled).any(|g| (f - g).abs() <= tolerance_frames));
+                    let same = frames_agree(&first, &second, tolerance_frames);
                     total += length / n as f64;
                     if same {
                         agree += length / n as f64;
@@ -84,6 +52,7 @@ pub fn arrival_agreement(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::data::case::images::{NO_ARRIVAL, bin_arrival};
     use crate::data::synth::arrival::{ArrivalSpec, arrival_map};
     use crate::data::tree::{KIND_NEW_VESSEL, TreeNode};
     use ctadsa_render::TigreGeometry;

@@ -26,10 +26,10 @@ use crate::eval::metrics::RegionScores;
 use crate::eval::score::{CaseTruth, EvalOptions};
 use crate::eval::surface_metrics::Coverage;
 use crate::eval::topology::{TopologyScores, topology_scores};
+use crate::method::arrival::run_arrival_maps;
 use crate::method::field_health::DensitySpread;
 use crate::method::train::{StepLog, Trainer};
 use crate::method::training_time::TrainingTime;
-use crate::output::arrival::run_arrival_maps;
 use crate::output::centreline::{ArrivalCheck, CentrelineSummary, SolidPart, completed_centreline, write_centreline};
 use crate::output::confidence::{MESH_CONFIDENCE, mesh_without_doubtful, vertex_confidence, write_mesh_confidence};
 use crate::output::extraction::{

@@ -25,6 +25,7 @@ use crate::data::mesh::TriMesh;
 use crate::data::mesh::sample::sample_surface;
 use crate::data::volume::BoxMm;
 use crate::error::Result;
+use crate::method::arrival::run_arrival_maps;
 use crate::method::densify::DensifyStats;
 use crate::method::init::initialise;
 use crate::method::loss::LossTargets;
@@ -160,6 +161,7 @@ impl Trainer {
         let voxel_mm = case.file.volume.voxel_mm;
         check_output_grid(&cfg, &working_box, voxel_mm)?;
         let bounds = ScaleBounds::from_voxel(voxel_mm, cfg.model.scale_min_voxels, cfg.model.scale_max_voxels);
+        let arrival = if cfg.init.arrival_seeds { run_arrival_maps(case, &cfg)? } else { None };
         let init = initialise(
             &cfg.init,
             views.views(),
@@ -169,6 +171,7 @@ impl Trainer {
             voxel_mm,
             bounds,
             cfg.run.seed,
+            arrival.as_deref(),
         )?;
         let rho0 = if cfg.model.initial_density > 0.0 {
             cfg.model.initial_density

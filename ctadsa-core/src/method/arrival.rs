@@ -1,0 +1,53 @@
+//! The contrast's arrival time at a 3-D point in two views. A time-resolved biplane run images
+//! the bolus in both planes at the same instants, so each pixel has the frame at which the first
+//! vessel along its ray fills ([`crate::data::case::ViewEntry::arrival`]). A point on a vessel
+//! fills at one time in both views; a ghost, which pairs one vessel's image in one view with
+//! another's in the other, shows two different times. The image seeds
+//! ([`crate::method::init::n2_seeds`], `init.arrival_seeds`) and the new centreline branches
+//! ([`crate::output::arrival`]) are checked this way.
+
+use ctadsa_render::ConeBeamView;
+use glam::DVec3;
+
+use crate::config::Config;
+use crate::data::case::Case;
+use crate::data::case::images::{Image, NO_ARRIVAL, bin_arrival};
+use crate::error::Result;
+
+/// The arrival maps of a run's views (its `run.views`, binned by `run.image_binning`: a binned
+/// pixel keeps the earliest frame of its block), when the case has one for every view.
+pub fn run_arrival_maps(case: &Case, cfg: &Config) -> Result<Option<Vec<Image>>> {
+    let case = if cfg.run.views.is_empty() { case.clone() } else { case.select_views(&cfg.run.views)? };
+    let Some(maps) = case.arrival_maps()? else { return Ok(None) };
+    Ok(Some(maps.iter().map(|m| bin_arrival(m, cfg.run.image_binning.max(1))).collect()))
+}
+
+/// The frames of the 3 × 3 pixels around `view`'s projection of `p` (a pixel no vessel fills,
+/// or off the detector, is [`NO_ARRIVAL`]).
+pub fn frames_around(view: &ConeBeamView, map: &Image, p: DVec3) -> [f32; 9] {
+    let mut out = [NO_ARRIVAL; 9];
+    let Some(uv) = view.project(p) else { return out };
+    let (u, v) = (uv.x.round() as i64, uv.y.round() as i64);
+    for (k, slot) in out.iter_mut().enumerate() {
+        let (c, r) = (u + k as i64 % 3 - 1, v + k as i64 / 3 - 1);
+        if c >= 0 && r >= 0 && c < map.width as i64 && r < map.height as i64 {
+            *slot = map.data[r as usize * map.width as usize + c as usize];
+        }
+    }
+    out
+}
+
+/// Whether some filled pixel of `first` and some of `second` filled within `tolerance_frames`
+/// of each other.
+pub fn frames_agree(first: &[f32; 9], second: &[f32; 9], tolerance_frames: f32) -> bool {
+    let filled = |f: &&f32| **f >= 0.0;
+    first.iter().filter(filled).any(|f| second.iter().filter(filled).any(|g| (f - g).abs() <= tolerance_frames))
+}
+
+/// Whether the point `p` fills at one time in both of two views (`maps[v]` the arrival map of
+/// `views[v]`, the first two of each): some pixel of the 3 × 3 around each projection filled
+/// within `tolerance_frames` of some around the other. A vessel behind an earlier-filled one in
+/// a view (the prior's, say) shows that one's frame there and fails.
+pub fn arrives_together(views: &[ConeBeamView], maps: &[Image], p: DVec3, tolerance_frames: f32) -> bool {
+    frames_agree(&frames_around(&views[0], &maps[0], p), &frames_around(&views[1], &maps[1], p), tolerance_frames)
+}
