@@ -50,3 +50,62 @@ pub(crate) fn tree_sum(values: &mut Shared<[f32]>, #[comptime] units: usize, #[c
         sync_cube();
     }
 }
+
+/// Elements each unit of a two-stage reduction's first stage sums, about.
+const ELEMENTS_PER_UNIT: usize = 8;
+
+/// Workgroups of [`REDUCE_UNITS`] units for the first stage of a two-stage sum over `len`
+/// elements: about [`ELEMENTS_PER_UNIT`] per unit, at most [`REDUCE_UNITS`] (the second stage,
+/// [`sum_partials`], adds one partial per unit).
+pub(crate) fn reduce_groups(len: usize) -> usize {
+    len.div_ceil(REDUCE_UNITS * ELEMENTS_PER_UNIT).clamp(1, REDUCE_UNITS)
+}
+
+/// The elements a unit of a first stage sums: `i = (group · units + unit) + r · groups · units`
+/// for `r` in `0..rounds`, those below `len`; call as `for r in 0..reduce_rounds(..)`.
+#[cube]
+pub(crate) fn reduce_rounds(len: u32, groups: u32, #[comptime] units: usize) -> usize {
+    (len as usize).div_ceil(groups as usize * units)
+}
+
+/// Second stage of a two-stage sum, one workgroup: `out[0] = scale · Σ partials[0..groups]`
+/// (`groups` ≤ `units`).
+#[cube(launch)]
+fn sum_partials_kernel(
+    partials: &Tensor<f32>,
+    out: &mut Tensor<f32>,
+    groups: u32,
+    scale: f32,
+    #[comptime] units: usize,
+    #[comptime] levels: u32,
+) {
+    let u = UNIT_POS as usize;
+    let mut sums = Shared::<[f32]>::new_slice(units);
+    let mut a = 0.0f32;
+    if u < groups as usize {
+        a = partials[u];
+    }
+    sums[u] = a;
+    tree_sum(&mut sums, units, levels);
+    if u == 0 {
+        out[0] = sums[0] * scale;
+    }
+}
+
+/// `[1]`: `scale` times the sum of the first stage's `partials` (`[groups]`), in one launch.
+pub(crate) fn sum_partials(partials: CubeTensor, scale: f32) -> CubeTensor {
+    let groups = partials.shape().num_elements();
+    let out = empty(vec![1], &partials);
+    sum_partials_kernel::launch(
+        &partials.client,
+        CubeCount::Static(1, 1, 1),
+        CubeDim::new_1d(REDUCE_UNITS as u32),
+        partials.clone().into_tensor_arg(),
+        out.clone().into_tensor_arg(),
+        groups as u32,
+        scale,
+        REDUCE_UNITS,
+        REDUCE_LEVELS,
+    );
+    out
+}

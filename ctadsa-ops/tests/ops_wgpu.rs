@@ -138,6 +138,33 @@ fn ssim_on_wgpu_matches_cpu() {
     assert!(scale > 0.0 && worst <= 1e-3 * scale, "SSIM gradient: wgpu differs by {worst} (scale {scale})");
 }
 
+/// The L1 and SSIM means over more elements than one pass of the reductions' 256 workgroups
+/// covers (each unit sums three strided rounds), against f64 sums of the same values.
+#[test]
+fn means_over_many_workgroups_match_f64_sums() {
+    use ctadsa_ops::loss_op::l1_mean;
+    let Some(gpu) = wgpu_or_skip("the L1 and SSIM means") else { return };
+    let [v, h, w] = [2, 500, 601];
+    let n = v * h * w;
+    let unit = |d: Vec<f32>| d.into_iter().map(|a| 0.5 * (a + 1.0)).collect::<Vec<f32>>();
+    let (x, y) = (unit(values(n, 41)), unit(values(n, 42)));
+    let l1_f64 = x.iter().zip(&y).map(|(a, b)| (*a as f64 - *b as f64).abs()).sum::<f64>() / n as f64;
+    let xt = Tensor::<3>::from_data(TensorData::new(x.clone(), [v, h, w]), &gpu);
+    let yt = Tensor::<3>::from_data(TensorData::new(y.clone(), [v, h, w]), &gpu);
+    let l1 = host_vec(l1_mean(xt, yt))[0] as f64;
+    assert!((l1 - l1_f64).abs() <= 1e-5 * l1_f64, "L1 mean {l1} against {l1_f64}");
+    // SSIM: the CPU op's mean against the GPU's over the same images.
+    let ssim = |device: Device| {
+        let x = Tensor::<3>::from_data(TensorData::new(x.clone(), [v, h, w]), &device);
+        let y = Tensor::<3>::from_data(TensorData::new(y.clone(), [v, h, w]), &device);
+        let mu_y = window_blur(y.clone());
+        let syy = window_blur(y.clone() * y.clone()) - mu_y.clone() * mu_y.clone();
+        host_vec(ssim_mean(x, y, mu_y, syy))[0] as f64
+    };
+    let (cpu, wgpu) = (ssim(Device::ndarray()), ssim(gpu));
+    assert!((cpu - wgpu).abs() <= 1e-5 * cpu.abs().max(1e-3), "SSIM mean {wgpu} against the CPU's {cpu}");
+}
+
 #[test]
 fn anchor_targets_on_wgpu_match_cpu() {
     use ctadsa_ops::anchor_op::grid::AnchorGrid;

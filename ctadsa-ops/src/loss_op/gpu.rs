@@ -9,7 +9,9 @@ use burn::backend::{
 use burn_cubecl::cubecl::prelude::*;
 use burn_cubecl::{CubeBackend, cubecl};
 
-use crate::cube::{REDUCE_LEVELS, REDUCE_UNITS, empty, launch_1d, prepare, tree_sum};
+use crate::cube::{
+    REDUCE_LEVELS, REDUCE_UNITS, empty, launch_1d, prepare, reduce_groups, reduce_rounds, sum_partials, tree_sum,
+};
 
 /// The loss terms as backend ops (CubeCL only: other backends compose them).
 #[backend_extension(Autodiff, Cube)]
@@ -34,22 +36,24 @@ pub trait LossTermsBackend: Backend {
     ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>);
 }
 
-/// One workgroup: `out[0] = Σ |x − y| / len`.
+/// First stage of `Σ |x − y|`: `partials[g]` the sum over workgroup `g`'s elements
+/// ([`reduce_rounds`]).
 #[cube(launch)]
-fn l1_sum_kernel(
+fn l1_partial_kernel(
     x: &Tensor<f32>,
     y: &Tensor<f32>,
-    out: &mut Tensor<f32>,
+    partials: &mut Tensor<f32>,
     len: u32,
+    groups: u32,
     #[comptime] units: usize,
     #[comptime] levels: u32,
 ) {
     let u = UNIT_POS as usize;
-    let rounds = (len as usize).div_ceil(units);
+    let first = CUBE_POS as usize * units + u;
     let mut sums = Shared::<[f32]>::new_slice(units);
     let mut a = 0.0f32;
-    for r in 0..rounds {
-        let i = r * units + u;
+    for r in 0..reduce_rounds(len, groups, units) {
+        let i = first + r * (groups as usize) * units;
         if i < len as usize {
             a += f32::abs(x[i] - y[i]);
         }
@@ -57,7 +61,7 @@ fn l1_sum_kernel(
     sums[u] = a;
     tree_sum(&mut sums, units, levels);
     if u == 0 {
-        out[0] = sums[0] / f32::cast_from(len);
+        partials[CUBE_POS as usize] = sums[0];
     }
 }
 
@@ -107,19 +111,21 @@ impl LossTermsBackend for CubeBackend {
     fn l1_mean(x: FloatTensor<Self>, y: FloatTensor<Self>) -> FloatTensor<Self> {
         let (x, y) = (prepare(x), prepare(y));
         let len = x.shape().num_elements();
-        let out = empty(vec![1], &x);
-        l1_sum_kernel::launch(
+        let groups = reduce_groups(len);
+        let partials = empty(vec![groups], &x);
+        l1_partial_kernel::launch(
             &x.client,
-            CubeCount::Static(1, 1, 1),
+            CubeCount::Static(groups as u32, 1, 1),
             CubeDim::new_1d(REDUCE_UNITS as u32),
             x.clone().into_tensor_arg(),
             y.into_tensor_arg(),
-            out.clone().into_tensor_arg(),
+            partials.clone().into_tensor_arg(),
             len as u32,
+            groups as u32,
             REDUCE_UNITS,
             REDUCE_LEVELS,
         );
-        out
+        sum_partials(partials, 1.0 / len as f32)
     }
 
     fn l1_mean_backward(x: FloatTensor<Self>, y: FloatTensor<Self>, grad: FloatTensor<Self>) -> FloatTensor<Self> {

@@ -1,9 +1,10 @@
-//! The SSIM op on CubeCL in three launches forward and two backward (composed of tensor ops and
+//! The SSIM op on CubeCL in four launches forward and two backward (composed of tensor ops and
 //! blurs it took about twenty each way). The separable 11-tap window runs as a pass along W and
 //! a pass along H, zero-padded at each view's borders, as `blur_op`:
 //!
 //! - forward: (1) along W, the window sums of `x`, `x²` and `x·y`; (2) along H, the statistics
-//!   `μx`, `E[x²]`, `E[xy]` (kept for the backward) and each pixel's SSIM; (3) their mean, in one workgroup;
+//!   `μx`, `E[x²]`, `E[xy]` (kept for the backward) and each pixel's SSIM; (3, 4) their mean, as a
+//!   sum per workgroup and the sum of those;
 //! - backward: (1) along W, the window sums of the three partial derivatives of SSIM with respect
 //!   to the statistics (each computed where it is read); (2) along H, and
 //!   `∂/∂x = blur(∂S/∂μx) + 2x · blur(∂S/∂E[x²]) + y · blur(∂S/∂E[xy])`, all scaled by
@@ -18,7 +19,9 @@ use burn_cubecl::{CubeBackend, cubecl};
 
 use super::cpu::{C1, C2};
 use crate::blur_op::gpu::tap;
-use crate::cube::{REDUCE_LEVELS, REDUCE_UNITS, empty, launch_1d, prepare, tree_sum};
+use crate::cube::{
+    REDUCE_LEVELS, REDUCE_UNITS, empty, launch_1d, prepare, reduce_groups, reduce_rounds, sum_partials, tree_sum,
+};
 
 /// `(a1, a2, b1, b2)` with SSIM = `a1·a2 / (b1·b2)`, as `cpu::terms`.
 #[cube]
@@ -105,15 +108,23 @@ fn ssim_cols_kernel(
     map[id] = (a1 * a2) / (b1 * b2);
 }
 
-/// Forward (3), one workgroup: `out[0] = Σ map / len`.
+/// Forward (3), the first stage of `Σ map`: `partials[g]` the sum over workgroup `g`'s elements
+/// ([`reduce_rounds`]; the mean is [`sum_partials`] of them).
 #[cube(launch)]
-fn mean_kernel(map: &Tensor<f32>, out: &mut Tensor<f32>, len: u32, #[comptime] units: usize, #[comptime] levels: u32) {
+fn map_partial_kernel(
+    map: &Tensor<f32>,
+    partials: &mut Tensor<f32>,
+    len: u32,
+    groups: u32,
+    #[comptime] units: usize,
+    #[comptime] levels: u32,
+) {
     let u = UNIT_POS as usize;
-    let rounds = (len as usize).div_ceil(units);
+    let first = CUBE_POS as usize * units + u;
     let mut sums = Shared::<[f32]>::new_slice(units);
     let mut a = 0.0f32;
-    for r in 0..rounds {
-        let i = r * units + u;
+    for r in 0..reduce_rounds(len, groups, units) {
+        let i = first + r * (groups as usize) * units;
         if i < len as usize {
             a += map[i];
         }
@@ -121,7 +132,7 @@ fn mean_kernel(map: &Tensor<f32>, out: &mut Tensor<f32>, len: u32, #[comptime] u
     sums[u] = a;
     tree_sum(&mut sums, units, levels);
     if u == 0 {
-        out[0] = sums[0] / f32::cast_from(len);
+        partials[CUBE_POS as usize] = sums[0];
     }
 }
 
@@ -236,17 +247,20 @@ pub fn forward(x: CubeTensor, y: CubeTensor, mu_y: CubeTensor, syy: CubeTensor) 
         h as u32,
         w as u32,
     );
-    let mean = empty(vec![1], &x);
-    mean_kernel::launch(
+    let groups = reduce_groups(pixels);
+    let partials = empty(vec![groups], &x);
+    map_partial_kernel::launch(
         &x.client,
-        CubeCount::Static(1, 1, 1),
+        CubeCount::Static(groups as u32, 1, 1),
         CubeDim::new_1d(REDUCE_UNITS as u32),
         map.into_tensor_arg(),
-        mean.clone().into_tensor_arg(),
+        partials.clone().into_tensor_arg(),
         pixels as u32,
+        groups as u32,
         REDUCE_UNITS,
         REDUCE_LEVELS,
     );
+    let mean = sum_partials(partials, 1.0 / pixels as f32);
     (mean, stats)
 }
 
