@@ -49,7 +49,7 @@ fn l1_partial_kernel(
     #[comptime] levels: u32,
 ) {
     let u = UNIT_POS as usize;
-    let first = CUBE_POS as usize * units + u;
+    let first = CUBE_POS * units + u;
     let mut sums = Shared::<[f32]>::new_slice(units);
     let mut a = 0.0f32;
     for r in 0..reduce_rounds(len, groups, units) {
@@ -61,7 +61,7 @@ fn l1_partial_kernel(
     sums[u] = a;
     tree_sum(&mut sums, units, levels);
     if u == 0 {
-        partials[CUBE_POS as usize] = sums[0];
+        partials[CUBE_POS] = sums[0];
     }
 }
 
