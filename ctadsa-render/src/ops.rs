@@ -21,6 +21,8 @@ pub struct RenderSetup {
     pub k_sigma: f32,
     /// How the GPU kernels add atomically.
     pub f32_add: F32Add,
+    /// Units per Gaussian (and view) in the GPU render kernels ([`crate::RenderSettings::row_split_for`]).
+    pub row_split: u32,
 }
 
 impl RenderSetup {

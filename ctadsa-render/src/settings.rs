@@ -24,11 +24,16 @@ pub struct RenderSettings {
     pub k_sigma: f32,
     /// How the GPU kernels add atomically (default: the device's best).
     pub f32_add: F32Add,
+    /// Units per Gaussian (and view) in the GPU render kernels, each walking every `row_split`-th
+    /// row of the footprint: 0 (default) picks by the detector's height (one per 64 rows, at most
+    /// 8), else a power of two ≤ 64. The CPU kernels ignore it; results agree up to the order
+    /// of float rounding.
+    pub row_split: u32,
 }
 
 impl Default for RenderSettings {
     fn default() -> Self {
-        Self { k_sigma: 3.0, f32_add: F32Add::Auto }
+        Self { k_sigma: 3.0, f32_add: F32Add::Auto, row_split: 0 }
     }
 }
 
@@ -37,6 +42,20 @@ impl RenderSettings {
         if !(self.k_sigma > 0.0 && self.k_sigma <= 20.0) {
             return Err(RenderError::InvalidSetting(format!("k_sigma must be in (0, 20], got {}", self.k_sigma)));
         }
+        if !(self.row_split == 0 || (self.row_split.is_power_of_two() && self.row_split <= MAX_ROW_SPLIT)) {
+            return Err(RenderError::InvalidSetting(format!(
+                "row_split must be 0 (by the detector's height) or a power of two ≤ {MAX_ROW_SPLIT}, got {}",
+                self.row_split
+            )));
+        }
         Ok(())
     }
+
+    /// The render kernels' units per Gaussian for views `height_px` high ([`Self::row_split`]).
+    pub fn row_split_for(&self, height_px: u32) -> u32 {
+        if self.row_split > 0 { self.row_split } else { (height_px / 64).clamp(1, 8).next_power_of_two() }
+    }
 }
+
+/// Largest [`RenderSettings::row_split`] (the GPU kernels' workgroup size).
+pub const MAX_ROW_SPLIT: u32 = 64;

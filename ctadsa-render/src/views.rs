@@ -65,6 +65,11 @@ impl ViewSet {
     }
 
     pub(crate) fn setup(&self, settings: &RenderSettings) -> RenderSetup {
-        RenderSetup { views: self.packed.clone(), k_sigma: settings.k_sigma, f32_add: settings.f32_add }
+        RenderSetup {
+            views: self.packed.clone(),
+            k_sigma: settings.k_sigma,
+            f32_add: settings.f32_add,
+            row_split: settings.row_split_for(self.packed.first().map_or(0, |v| v.height)),
+        }
     }
 }

@@ -1,6 +1,7 @@
 //! The wgpu (CubeCL) kernels against the CPU kernels: forward, all gradients, the densification
 //! statistic and voxelisation agree within 1e-4 relative, with the device's f32 atomic add and
-//! with the compare-and-swap loop; edge cases stay finite.
+//! with the compare-and-swap loop, and with a footprint's rows split among 1, 4 and 64 units;
+//! edge cases stay finite.
 //!
 //! Needs a wgpu adapter (a GPU or Mesa lavapipe). Without one every test prints why and returns;
 //! with `CTADSA_REQUIRE_WGPU=1` (CI) a missing adapter is a failure.
@@ -81,19 +82,24 @@ fn forward_and_gradients_match_the_cpu() {
         view_set(&[small_geometry(-90.0, 64, 0.8), small_geometry(0.0, 64, 0.8), small_geometry(-45.0, 64, 0.8)]);
     let weights: Vec<f32> = (0..3 * 64 * 64).map(|_| rng.uniform(-1.0, 1.0) as f32).collect();
     let cpu = run(&gs, &views, &Device::ndarray(), &weights, &RenderSettings::default());
+    // Each way of adding, and the render kernels with 1, 4 and 64 units per Gaussian (a
+    // footprint's rows split among them; 64: the whole workgroup).
     for_each_f32_add(|settings| {
-        let mode = settings.f32_add;
-        let wgpu = run(&gs, &views, &gpu, &weights, settings);
-        let err = rel_l2(&wgpu.image, &cpu.image);
-        println!("image: relative L2 {err:.2e}");
-        assert!(err <= 1e-4, "forward ({mode:?}) differs: {err:e}");
-        for (name, (a, b)) in ["means", "scales", "rotations", "densities", "screen stats"]
-            .iter()
-            .zip(wgpu.grads.iter().zip(cpu.grads.iter()))
-        {
-            let err = rel_l2(a, b);
-            println!("{name}: relative L2 {err:.2e}");
-            assert!(err <= 1e-4, "{name} ({mode:?}) differ: {err:e}");
+        for row_split in [1, 4, 64] {
+            let settings = &RenderSettings { row_split, ..*settings };
+            let mode = (settings.f32_add, row_split);
+            let wgpu = run(&gs, &views, &gpu, &weights, settings);
+            let err = rel_l2(&wgpu.image, &cpu.image);
+            println!("image: relative L2 {err:.2e}");
+            assert!(err <= 1e-4, "forward ({mode:?}) differs: {err:e}");
+            for (name, (a, b)) in ["means", "scales", "rotations", "densities", "screen stats"]
+                .iter()
+                .zip(wgpu.grads.iter().zip(cpu.grads.iter()))
+            {
+                let err = rel_l2(a, b);
+                println!("{name}: relative L2 {err:.2e}");
+                assert!(err <= 1e-4, "{name} ({mode:?}) differ: {err:e}");
+            }
         }
     });
 }

@@ -15,11 +15,15 @@ pub struct ModelConfig {
     pub k_sigma: f32,
     /// Initial density of every Gaussian (density units, per mm); 0 = estimated from the images.
     pub initial_density: f64,
+    /// GPU render kernels: units per Gaussian and view, each walking every `render_row_split`-th
+    /// footprint row; 0 = by the detector's height (`ctadsa_render::RenderSettings::row_split`).
+    /// Speed only: the images and gradients agree up to float rounding.
+    pub render_row_split: u32,
 }
 
 impl Default for ModelConfig {
     fn default() -> Self {
-        Self { scale_min_voxels: 0.1, scale_max_voxels: 10.0, k_sigma: 3.0, initial_density: 0.0 }
+        Self { scale_min_voxels: 0.1, scale_max_voxels: 10.0, k_sigma: 3.0, initial_density: 0.0, render_row_split: 0 }
     }
 }
 

@@ -50,6 +50,12 @@ impl Config {
             "need 0 < scale_min_voxels < scale_max_voxels",
         )?;
         check(self.model.k_sigma > 0.0 && self.model.k_sigma <= 20.0, "model.k_sigma", "must be in (0, 20]")?;
+        check(
+            self.model.render_row_split == 0
+                || (self.model.render_row_split.is_power_of_two() && self.model.render_row_split <= 64),
+            "model.render_row_split",
+            "must be 0 (by the detector's height) or a power of two ≤ 64",
+        )?;
         check(self.model.initial_density >= 0.0, "model.initial_density", "must be ≥ 0")?;
         self.field.encoding.validate().map_err(|e| CoreError::invalid(format!("config `field.encoding`: {e}")))?;
         check((1..=4).contains(&self.field.hidden_layers), "field.hidden_layers", "must be in 1..=4")?;

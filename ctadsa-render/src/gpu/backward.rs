@@ -1,13 +1,15 @@
-//! CubeCL backward kernel: one unit per Gaussian walks its footprint in every view, sums the
+//! CubeCL backward kernel: `split` units per Gaussian walk its footprint in every view (each
+//! every `split`-th row, over the row's exact column span), the first of them sums their
 //! camera-frame gradient terms, moves them to the world frame and chains them to the scales and
-//! the quaternion (`cpu::backward`, line by line). No atomics: each unit writes its own outputs.
+//! the quaternion (`cpu::backward`, line by line). No atomics: each Gaussian's first unit writes
+//! its outputs.
 // CubeCL kernels: `x * -1.0` keeps the expression in the kernel IR's binary-op form.
 #![allow(clippy::neg_multiply)]
 
 use burn_cubecl::cubecl;
 use cubecl::prelude::*;
 
-use super::math::{Params, Sym3, load_params, load_view, project, quat_to_mat, row_eval, unit_value};
+use super::math::{Params, Sym3, load_params, load_view, project, quat_to_mat, row_columns, row_eval, unit_value};
 
 /// `∂L/∂s` and `∂L/∂q` (unnormalised) from the world-frame `∂L/∂Q` (`cpu::backward::chain_precision`).
 #[derive(CubeType, Clone, Copy)]
@@ -73,6 +75,9 @@ pub fn chain_precision(p: &Params, g: &Sym3) -> Chain {
     }
 }
 
+/// Sums each view's pixel terms are gathered into, per unit of a workgroup.
+const TERMS: usize = 10;
+
 #[cube(launch)]
 #[allow(clippy::too_many_arguments)]
 pub fn render_backward_kernel(
@@ -89,13 +94,20 @@ pub fn render_backward_kernel(
     g_stats: &mut Tensor<f32>,
     n: u32,
     n_views: u32,
+    split: u32,
     k_sigma: f32,
+    #[comptime] units: usize,
 ) {
-    let i = ABSOLUTE_POS;
-    if i >= n as usize {
-        terminate!();
-    }
-    let p = load_params(means, scales, rotations, densities, i);
+    // `split` consecutive units (of one workgroup: `split` divides `units`) share a Gaussian,
+    // each walking every `split`-th footprint row; the first of them sums their terms per view.
+    // Every unit reaches every barrier, those past the last Gaussian too.
+    let u = UNIT_POS as usize;
+    let lane = (ABSOLUTE_POS % (split as usize)) as u32;
+    let i = ABSOLUTE_POS / (split as usize);
+    let inside = i < n as usize;
+    let mut terms = Shared::<[f32]>::new_slice(units * TERMS);
+    let p = load_params(means, scales, rotations, densities, select(inside, i, 0));
+    let live = inside && p.valid == 1u32;
     let mut d_rho = 0.0f32;
     let mut dm_x = 0.0f32;
     let mut dm_y = 0.0f32;
@@ -108,101 +120,134 @@ pub fn render_backward_kernel(
     let mut dq_zz = 0.0f32;
     let mut stat = 0.0f32;
     let mut visible = 0.0f32;
-    if p.valid == 1u32 {
-        for v in 0..n_views {
-            let vw = load_view(views, v as usize);
-            let pr = project(&p, &vw, k_sigma);
-            if pr.valid == 1u32 {
-                let mut s_unit = 0.0f32;
-                let mut e_x = 0.0f32;
-                let mut e_y = 0.0f32;
-                let mut e_z = 0.0f32;
-                let mut m_xx = 0.0f32;
-                let mut m_xy = 0.0f32;
-                let mut m_xz = 0.0f32;
-                let mut m_yy = 0.0f32;
-                let mut m_yz = 0.0f32;
-                let mut m_zz = 0.0f32;
-                let plane = (v as usize) * (vw.width as usize) * (vw.height as usize);
-                for row in pr.row_min..pr.row_max + 1 {
-                    let re = row_eval(&pr, &vw, row);
-                    let dy = re.dy;
-                    let yn = re.yn;
-                    let base = plane + (row as usize) * (vw.width as usize);
-                    for col in pr.col_min..pr.col_max + 1 {
-                        let g = grad[base + col as usize];
-                        let dx = (f32::cast_from(col) - pr.u0) * vw.inv_fx;
-                        let (unit, inv_a) = unit_value(&pr, &re, dx);
-                        let gu = g * unit;
-                        let gi = gu * p.density;
-                        let xn = pr.x0 + dx;
-                        let qu_x = pr.g_x + pr.q.xx * dx + pr.q.xy * dy;
-                        let qu_y = pr.g_y + pr.q.xy * dx + pr.q.yy * dy;
-                        let beta = (qu_x * dx + qu_y * dy) * inv_a;
-                        let ex = pr.mu_z * (dx - beta * xn);
-                        let ey = pr.mu_z * (dy - beta * yn);
-                        let ez = pr.mu_z * beta * -1.0f32;
-                        let gia = gi * inv_a;
-                        s_unit += gu;
-                        e_x += gi * ex;
-                        e_y += gi * ey;
-                        e_z += gi * ez;
-                        m_xx += gia * xn * xn + gi * ex * ex;
-                        m_xy += gia * xn * yn + gi * ex * ey;
-                        m_xz += gia * xn + gi * ex * ez;
-                        m_yy += gia * yn * yn + gi * ey * ey;
-                        m_yz += gia * yn + gi * ey * ez;
-                        m_zz += gia + gi * ez * ez;
-                    }
+    for v in 0..n_views {
+        let vw = load_view(views, v as usize);
+        let pr = project(&p, &vw, k_sigma);
+        let seen = live && pr.valid == 1u32;
+        let mut s_unit = 0.0f32;
+        let mut e_x = 0.0f32;
+        let mut e_y = 0.0f32;
+        let mut e_z = 0.0f32;
+        let mut m_xx = 0.0f32;
+        let mut m_xy = 0.0f32;
+        let mut m_xz = 0.0f32;
+        let mut m_yy = 0.0f32;
+        let mut m_yz = 0.0f32;
+        let mut m_zz = 0.0f32;
+        if seen {
+            let plane = (v as usize) * (vw.width as usize) * (vw.height as usize);
+            let rows = pr.row_max + 1 - pr.row_min;
+            let mine = (rows + split - 1 - lane) / split;
+            for k in 0..mine {
+                let row = pr.row_min + lane + k * split;
+                let re = row_eval(&pr, &vw, row);
+                let dy = re.dy;
+                let yn = re.yn;
+                let base = plane + (row as usize) * (vw.width as usize);
+                let (first, last) = row_columns(&pr, &re, &vw);
+                for col in first..last + 1 {
+                    let g = grad[base + col as usize];
+                    let dx = (f32::cast_from(col) - pr.u0) * vw.inv_fx;
+                    let (unit, inv_a) = unit_value(&pr, &re, dx);
+                    let gu = g * unit;
+                    let gi = gu * p.density;
+                    let xn = pr.x0 + dx;
+                    let qu_x = pr.g_x + pr.q.xx * dx + pr.q.xy * dy;
+                    let qu_y = pr.g_y + pr.q.xy * dx + pr.q.yy * dy;
+                    let beta = (qu_x * dx + qu_y * dy) * inv_a;
+                    let ex = pr.mu_z * (dx - beta * xn);
+                    let ey = pr.mu_z * (dy - beta * yn);
+                    let ez = pr.mu_z * beta * -1.0f32;
+                    let gia = gi * inv_a;
+                    s_unit += gu;
+                    e_x += gi * ex;
+                    e_y += gi * ey;
+                    e_z += gi * ez;
+                    m_xx += gia * xn * xn + gi * ex * ex;
+                    m_xy += gia * xn * yn + gi * ex * ey;
+                    m_xz += gia * xn + gi * ex * ez;
+                    m_yy += gia * yn * yn + gi * ey * ey;
+                    m_yz += gia * yn + gi * ey * ez;
+                    m_zz += gia + gi * ez * ez;
                 }
-                // ∂L/∂μ_c = Q E, to world with Rᵀ.
-                let q = pr.q;
-                let dc_x = q.xx * e_x + q.xy * e_y + q.xz * e_z;
-                let dc_y = q.xy * e_x + q.yy * e_y + q.yz * e_z;
-                let dc_z = q.xz * e_x + q.yz * e_y + q.zz * e_z;
-                let r = vw.r;
-                dm_x += r.m00 * dc_x + r.m10 * dc_y + r.m20 * dc_z;
-                dm_y += r.m01 * dc_x + r.m11 * dc_y + r.m21 * dc_z;
-                dm_z += r.m02 * dc_x + r.m12 * dc_y + r.m22 * dc_z;
-                // ∂L/∂Q_w = Rᵀ (−½ M) R: first T = M R, then Rᵀ T.
-                let t00 = m_xx * r.m00 + m_xy * r.m10 + m_xz * r.m20;
-                let t01 = m_xx * r.m01 + m_xy * r.m11 + m_xz * r.m21;
-                let t02 = m_xx * r.m02 + m_xy * r.m12 + m_xz * r.m22;
-                let t10 = m_xy * r.m00 + m_yy * r.m10 + m_yz * r.m20;
-                let t11 = m_xy * r.m01 + m_yy * r.m11 + m_yz * r.m21;
-                let t12 = m_xy * r.m02 + m_yy * r.m12 + m_yz * r.m22;
-                let t20 = m_xz * r.m00 + m_yz * r.m10 + m_zz * r.m20;
-                let t21 = m_xz * r.m01 + m_yz * r.m11 + m_zz * r.m21;
-                let t22 = m_xz * r.m02 + m_yz * r.m12 + m_zz * r.m22;
-                dq_xx += -0.5f32 * (r.m00 * t00 + r.m10 * t10 + r.m20 * t20);
-                dq_xy += -0.5f32 * (r.m00 * t01 + r.m10 * t11 + r.m20 * t21);
-                dq_xz += -0.5f32 * (r.m00 * t02 + r.m10 * t12 + r.m20 * t22);
-                dq_yy += -0.5f32 * (r.m01 * t01 + r.m11 * t11 + r.m21 * t21);
-                dq_yz += -0.5f32 * (r.m01 * t02 + r.m11 * t12 + r.m21 * t22);
-                dq_zz += -0.5f32 * (r.m02 * t02 + r.m12 * t12 + r.m22 * t22);
-                d_rho += s_unit;
-                let du = dc_x * pr.mu_z * vw.inv_fx * (f32::cast_from(vw.width) * 0.5);
-                let dv = dc_y * pr.mu_z * vw.inv_fy * (f32::cast_from(vw.height) * 0.5);
-                stat += f32::sqrt(du * du + dv * dv);
-                visible += 1.0;
             }
         }
+        let t = u * TERMS;
+        terms[t] = s_unit;
+        terms[t + 1] = e_x;
+        terms[t + 2] = e_y;
+        terms[t + 3] = e_z;
+        terms[t + 4] = m_xx;
+        terms[t + 5] = m_xy;
+        terms[t + 6] = m_xz;
+        terms[t + 7] = m_yy;
+        terms[t + 8] = m_yz;
+        terms[t + 9] = m_zz;
+        sync_cube();
+        if seen && lane == 0u32 {
+            for other in 1..split {
+                let o = (u + other as usize) * TERMS;
+                s_unit += terms[o];
+                e_x += terms[o + 1];
+                e_y += terms[o + 2];
+                e_z += terms[o + 3];
+                m_xx += terms[o + 4];
+                m_xy += terms[o + 5];
+                m_xz += terms[o + 6];
+                m_yy += terms[o + 7];
+                m_yz += terms[o + 8];
+                m_zz += terms[o + 9];
+            }
+            // ∂L/∂μ_c = Q E, to world with Rᵀ.
+            let q = pr.q;
+            let dc_x = q.xx * e_x + q.xy * e_y + q.xz * e_z;
+            let dc_y = q.xy * e_x + q.yy * e_y + q.yz * e_z;
+            let dc_z = q.xz * e_x + q.yz * e_y + q.zz * e_z;
+            let r = vw.r;
+            dm_x += r.m00 * dc_x + r.m10 * dc_y + r.m20 * dc_z;
+            dm_y += r.m01 * dc_x + r.m11 * dc_y + r.m21 * dc_z;
+            dm_z += r.m02 * dc_x + r.m12 * dc_y + r.m22 * dc_z;
+            // ∂L/∂Q_w = Rᵀ (−½ M) R: first T = M R, then Rᵀ T.
+            let t00 = m_xx * r.m00 + m_xy * r.m10 + m_xz * r.m20;
+            let t01 = m_xx * r.m01 + m_xy * r.m11 + m_xz * r.m21;
+            let t02 = m_xx * r.m02 + m_xy * r.m12 + m_xz * r.m22;
+            let t10 = m_xy * r.m00 + m_yy * r.m10 + m_yz * r.m20;
+            let t11 = m_xy * r.m01 + m_yy * r.m11 + m_yz * r.m21;
+            let t12 = m_xy * r.m02 + m_yy * r.m12 + m_yz * r.m22;
+            let t20 = m_xz * r.m00 + m_yz * r.m10 + m_zz * r.m20;
+            let t21 = m_xz * r.m01 + m_yz * r.m11 + m_zz * r.m21;
+            let t22 = m_xz * r.m02 + m_yz * r.m12 + m_zz * r.m22;
+            dq_xx += -0.5f32 * (r.m00 * t00 + r.m10 * t10 + r.m20 * t20);
+            dq_xy += -0.5f32 * (r.m00 * t01 + r.m10 * t11 + r.m20 * t21);
+            dq_xz += -0.5f32 * (r.m00 * t02 + r.m10 * t12 + r.m20 * t22);
+            dq_yy += -0.5f32 * (r.m01 * t01 + r.m11 * t11 + r.m21 * t21);
+            dq_yz += -0.5f32 * (r.m01 * t02 + r.m11 * t12 + r.m21 * t22);
+            dq_zz += -0.5f32 * (r.m02 * t02 + r.m12 * t12 + r.m22 * t22);
+            d_rho += s_unit;
+            let du = dc_x * pr.mu_z * vw.inv_fx * (f32::cast_from(vw.width) * 0.5);
+            let dv = dc_y * pr.mu_z * vw.inv_fy * (f32::cast_from(vw.height) * 0.5);
+            stat += f32::sqrt(du * du + dv * dv);
+            visible += 1.0;
+        }
+        sync_cube();
     }
-    let dq = Sym3 { xx: dq_xx, xy: dq_xy, xz: dq_xz, yy: dq_yy, yz: dq_yz, zz: dq_zz };
-    let c = chain_precision(&p, &dq);
-    // Invalid Gaussians get zero gradients (their chain values may be NaN).
-    let valid = p.valid == 1u32;
-    g_means[3 * i] = dm_x;
-    g_means[3 * i + 1] = dm_y;
-    g_means[3 * i + 2] = dm_z;
-    g_scales[3 * i] = select(valid, c.ds0, 0.0f32);
-    g_scales[3 * i + 1] = select(valid, c.ds1, 0.0f32);
-    g_scales[3 * i + 2] = select(valid, c.ds2, 0.0f32);
-    g_rotations[4 * i] = select(valid, c.dw, 0.0f32);
-    g_rotations[4 * i + 1] = select(valid, c.dx, 0.0f32);
-    g_rotations[4 * i + 2] = select(valid, c.dy, 0.0f32);
-    g_rotations[4 * i + 3] = select(valid, c.dz, 0.0f32);
-    g_densities[i] = d_rho;
-    g_stats[2 * i] = stat;
-    g_stats[2 * i + 1] = visible;
+    if inside && lane == 0u32 {
+        let dq = Sym3 { xx: dq_xx, xy: dq_xy, xz: dq_xz, yy: dq_yy, yz: dq_yz, zz: dq_zz };
+        let c = chain_precision(&p, &dq);
+        // Invalid Gaussians get zero gradients (their chain values may be NaN).
+        let valid = p.valid == 1u32;
+        g_means[3 * i] = dm_x;
+        g_means[3 * i + 1] = dm_y;
+        g_means[3 * i + 2] = dm_z;
+        g_scales[3 * i] = select(valid, c.ds0, 0.0f32);
+        g_scales[3 * i + 1] = select(valid, c.ds1, 0.0f32);
+        g_scales[3 * i + 2] = select(valid, c.ds2, 0.0f32);
+        g_rotations[4 * i] = select(valid, c.dw, 0.0f32);
+        g_rotations[4 * i + 1] = select(valid, c.dx, 0.0f32);
+        g_rotations[4 * i + 2] = select(valid, c.dy, 0.0f32);
+        g_rotations[4 * i + 3] = select(valid, c.dz, 0.0f32);
+        g_densities[i] = d_rho;
+        g_stats[2 * i] = stat;
+        g_stats[2 * i + 1] = visible;
+    }
 }

@@ -12,6 +12,8 @@ use cubecl::prelude::*;
 pub const VIEW_LEN: usize = 20;
 /// √(2π).
 pub const SQRT_2PI: f32 = 2.506_628_3;
+/// Pixels by which [`row_columns`] widens a row's span on each side.
+pub const SPAN_MARGIN_PX: f32 = 2.0;
 
 /// Row-major 3 × 3 matrix.
 #[derive(CubeType, Clone, Copy)]
@@ -385,6 +387,35 @@ pub fn row_eval(pr: &Proj, vw: &View, row: u32) -> RowEval {
         n1: 2.0 * pr.c_xy * dy,
         r0: 1.0 + yn * yn,
     }
+}
+
+/// Columns (inclusive; empty when the first exceeds the last) of row `re` whose rays may meet
+/// the k-σ ellipsoid: the roots of the row's quadratic `N − k²α ≤ 0` in `dx`, widened by
+/// [`SPAN_MARGIN_PX`] against rounding and cut to the footprint's box. A superset of the
+/// pixels [`unit_value`] sees; every column of the box for unbounded footprints.
+#[cube]
+pub fn row_columns(pr: &Proj, re: &RowEval, vw: &View) -> (u32, u32) {
+    let mut first = pr.col_min;
+    let mut last = pr.col_max;
+    if pr.bounded == 1u32 {
+        // a > 0 for bounded footprints (`project`).
+        let a = pr.c_xx - pr.k2 * pr.q.xx;
+        let b = re.n1 - pr.k2 * re.a1;
+        let c = re.n0 - pr.k2 * re.a0;
+        let root = f32::sqrt(f32::max(b * b - 4.0 * a * c, 0.0));
+        let lo = pr.u0 + (-b - root) / (2.0 * a) * vw.fx - SPAN_MARGIN_PX;
+        let hi = pr.u0 + (-b + root) / (2.0 * a) * vw.fx + SPAN_MARGIN_PX;
+        let box_lo = f32::cast_from(pr.col_min);
+        let box_hi = f32::cast_from(pr.col_max);
+        // Comparisons first: a NaN bound keeps the box.
+        if lo > box_lo {
+            first = u32::cast_from(f32::ceil(f32::min(lo, box_hi + 1.0)));
+        }
+        if hi < box_hi {
+            last = u32::cast_from(f32::floor(f32::max(hi, box_lo)));
+        }
+    }
+    (first, last)
 }
 
 /// `I/ρ` at normalised column offset `dx`: `√(2π) sqrt(|ũ|²/α) exp(−½ N/α)` — 0 when the

@@ -23,6 +23,7 @@ use crate::{RenderSettings, VoxelGrid};
 
 /// Units per cube for all launches.
 const CUBE_UNITS: u32 = 64;
+const _: () = assert!(crate::settings::MAX_ROW_SPLIT == CUBE_UNITS, "a Gaussian's units share a workgroup");
 
 fn prepare(t: CubeTensor) -> CubeTensor {
     let t = if t.dtype() == DType::F32 { t } else { CubeBackend::float_cast(t, FloatDType::F32) };
@@ -67,7 +68,8 @@ impl XrayBackend for CubeBackend {
         let (w, h) = setup.image_size();
         let v = setup.views.len();
         let image = zeros(vec![v, h as usize, w as usize], &means);
-        let units = n * v;
+        let split = setup.row_split.max(1);
+        let units = n * v * split as usize;
         if units == 0 {
             return image;
         }
@@ -87,6 +89,7 @@ impl XrayBackend for CubeBackend {
             acc.as_u32.into_tensor_arg(),
             n as u32,
             v as u32,
+            split,
             setup.k_sigma,
             acc.native,
         );
@@ -111,8 +114,9 @@ impl XrayBackend for CubeBackend {
         let g_densities = empty(vec![n], &means);
         let g_stats = empty(vec![n, 2], &means);
         if n > 0 {
+            let split = setup.row_split.max(1);
             let views = packed_views(&setup, &means);
-            let (count, dim) = launch_dims(&means, n);
+            let (count, dim) = launch_dims(&means, n * split as usize);
             backward::render_backward_kernel::launch(
                 &means.client,
                 count,
@@ -130,7 +134,9 @@ impl XrayBackend for CubeBackend {
                 g_stats.clone().into_tensor_arg(),
                 n as u32,
                 setup.views.len() as u32,
+                split,
                 setup.k_sigma,
+                CUBE_UNITS as usize,
             );
         }
         RenderGrads {

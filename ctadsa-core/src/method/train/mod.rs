@@ -218,7 +218,8 @@ impl Trainer {
             })
         });
         let n = model.len();
-        let settings = RenderSettings { k_sigma: cfg.model.k_sigma, ..Default::default() };
+        let settings =
+            RenderSettings { k_sigma: cfg.model.k_sigma, row_split: cfg.model.render_row_split, ..Default::default() };
         let poses = cfg.pose.enabled.then(|| {
             let fixed: &[usize] = if cfg.pose.fix_first_view { &[0] } else { &[] };
             (ViewPoses::new(views.len(), fixed, &device), AdamConfig::new().with_epsilon(1e-12).init())
