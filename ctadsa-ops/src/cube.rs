@@ -56,20 +56,49 @@ const ELEMENTS_PER_UNIT: usize = 8;
 
 /// Workgroups of [`REDUCE_UNITS`] units for the first stage of a two-stage sum over `len`
 /// elements: about [`ELEMENTS_PER_UNIT`] per unit, at most [`REDUCE_UNITS`] (the second stage,
-/// [`sum_partials`], adds one partial per unit).
-pub(crate) fn reduce_groups(len: usize) -> usize {
+/// `sum_partials_kernel`, adds one partial per unit).
+fn reduce_groups(len: usize) -> usize {
     len.div_ceil(REDUCE_UNITS * ELEMENTS_PER_UNIT).clamp(1, REDUCE_UNITS)
 }
 
-/// The elements a unit of a first stage sums: `i = (group · units + unit) + r · groups · units`
-/// for `r` in `0..rounds`, those below `len`; call as `for r in 0..reduce_rounds(..)`.
-#[cube]
-pub(crate) fn reduce_rounds(len: u32, groups: u32, #[comptime] units: usize) -> usize {
-    (len as usize).div_ceil(groups as usize * units)
+/// First stage of a two-stage sum: `partials[g]` the sum over workgroup `g`'s elements
+/// (`i = (g · units + unit) + r · groups · units`, those below `len`) of `|x − y|`
+/// (`abs_diff`) or of `x` (`y` unread).
+#[cube(launch)]
+#[allow(clippy::too_many_arguments)]
+fn partial_sums_kernel(
+    x: &Tensor<f32>,
+    y: &Tensor<f32>,
+    partials: &mut Tensor<f32>,
+    len: u32,
+    groups: u32,
+    #[comptime] abs_diff: bool,
+    #[comptime] units: usize,
+    #[comptime] levels: u32,
+) {
+    let u = UNIT_POS as usize;
+    let first = CUBE_POS * units + u;
+    let stride = (groups as usize) * units;
+    let mut sums = Shared::<[f32]>::new_slice(units);
+    let mut a = 0.0f32;
+    for r in 0..(len as usize).div_ceil(stride) {
+        let i = first + r * stride;
+        if i < len as usize {
+            if abs_diff {
+                a += f32::abs(x[i] - y[i]);
+            } else {
+                a += x[i];
+            }
+        }
+    }
+    sums[u] = a;
+    tree_sum(&mut sums, units, levels);
+    if u == 0 {
+        partials[CUBE_POS] = sums[0];
+    }
 }
 
-/// Second stage of a two-stage sum, one workgroup: `out[0] = scale · Σ partials[0..groups]`
-/// (`groups` ≤ `units`).
+/// Second stage: `out[0] = scale · Σ partials[0..groups]` (`groups` ≤ `units`), one workgroup.
 #[cube(launch)]
 fn sum_partials_kernel(
     partials: &Tensor<f32>,
@@ -92,18 +121,34 @@ fn sum_partials_kernel(
     }
 }
 
-/// `[1]`: `scale` times the sum of the first stage's `partials` (`[groups]`), in one launch.
-pub(crate) fn sum_partials(partials: CubeTensor, scale: f32) -> CubeTensor {
-    let groups = partials.shape().num_elements();
-    let out = empty(vec![1], &partials);
+/// `[1]`: the mean of `|x − y|` (`y` given) or of `x` over all elements of `x` (same shape as
+/// `y`, contiguous f32), in two launches: a sum per workgroup ([`reduce_groups`]), then theirs.
+pub(crate) fn mean(x: &CubeTensor, y: Option<&CubeTensor>) -> CubeTensor {
+    let len = x.shape().num_elements();
+    let groups = reduce_groups(len);
+    let partials = empty(vec![groups], x);
+    partial_sums_kernel::launch(
+        &x.client,
+        CubeCount::Static(groups as u32, 1, 1),
+        CubeDim::new_1d(REDUCE_UNITS as u32),
+        x.clone().into_tensor_arg(),
+        y.unwrap_or(x).clone().into_tensor_arg(),
+        partials.clone().into_tensor_arg(),
+        len as u32,
+        groups as u32,
+        y.is_some(),
+        REDUCE_UNITS,
+        REDUCE_LEVELS,
+    );
+    let out = empty(vec![1], x);
     sum_partials_kernel::launch(
-        &partials.client,
+        &x.client,
         CubeCount::Static(1, 1, 1),
         CubeDim::new_1d(REDUCE_UNITS as u32),
-        partials.clone().into_tensor_arg(),
+        partials.into_tensor_arg(),
         out.clone().into_tensor_arg(),
         groups as u32,
-        scale,
+        1.0 / len.max(1) as f32,
         REDUCE_UNITS,
         REDUCE_LEVELS,
     );

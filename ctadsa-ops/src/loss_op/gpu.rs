@@ -9,9 +9,7 @@ use burn::backend::{
 use burn_cubecl::cubecl::prelude::*;
 use burn_cubecl::{CubeBackend, cubecl};
 
-use crate::cube::{
-    REDUCE_LEVELS, REDUCE_UNITS, empty, launch_1d, prepare, reduce_groups, reduce_rounds, sum_partials, tree_sum,
-};
+use crate::cube::{empty, launch_1d, mean, prepare};
 
 /// The loss terms as backend ops (CubeCL only: other backends compose them).
 #[backend_extension(Autodiff, Cube)]
@@ -34,35 +32,6 @@ pub trait LossTermsBackend: Backend {
         lambda: f32,
         weight: f32,
     ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>);
-}
-
-/// First stage of `Σ |x − y|`: `partials[g]` the sum over workgroup `g`'s elements
-/// ([`reduce_rounds`]).
-#[cube(launch)]
-fn l1_partial_kernel(
-    x: &Tensor<f32>,
-    y: &Tensor<f32>,
-    partials: &mut Tensor<f32>,
-    len: u32,
-    groups: u32,
-    #[comptime] units: usize,
-    #[comptime] levels: u32,
-) {
-    let u = UNIT_POS as usize;
-    let first = CUBE_POS * units + u;
-    let mut sums = Shared::<[f32]>::new_slice(units);
-    let mut a = 0.0f32;
-    for r in 0..reduce_rounds(len, groups, units) {
-        let i = first + r * (groups as usize) * units;
-        if i < len as usize {
-            a += f32::abs(x[i] - y[i]);
-        }
-    }
-    sums[u] = a;
-    tree_sum(&mut sums, units, levels);
-    if u == 0 {
-        partials[CUBE_POS] = sums[0];
-    }
 }
 
 /// `gx[i] = sign(x − y)·grad / len` (0 where they are equal, as burn's `abs` backward).
@@ -110,22 +79,7 @@ fn mix_plus_grad_kernel(
 impl LossTermsBackend for CubeBackend {
     fn l1_mean(x: FloatTensor<Self>, y: FloatTensor<Self>) -> FloatTensor<Self> {
         let (x, y) = (prepare(x), prepare(y));
-        let len = x.shape().num_elements();
-        let groups = reduce_groups(len);
-        let partials = empty(vec![groups], &x);
-        l1_partial_kernel::launch(
-            &x.client,
-            CubeCount::Static(groups as u32, 1, 1),
-            CubeDim::new_1d(REDUCE_UNITS as u32),
-            x.clone().into_tensor_arg(),
-            y.into_tensor_arg(),
-            partials.clone().into_tensor_arg(),
-            len as u32,
-            groups as u32,
-            REDUCE_UNITS,
-            REDUCE_LEVELS,
-        );
-        sum_partials(partials, 1.0 / len as f32)
+        mean(&x, Some(&y))
     }
 
     fn l1_mean_backward(x: FloatTensor<Self>, y: FloatTensor<Self>, grad: FloatTensor<Self>) -> FloatTensor<Self> {

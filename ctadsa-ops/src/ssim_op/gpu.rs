@@ -19,9 +19,7 @@ use burn_cubecl::{CubeBackend, cubecl};
 
 use super::cpu::{C1, C2};
 use crate::blur_op::gpu::tap;
-use crate::cube::{
-    REDUCE_LEVELS, REDUCE_UNITS, empty, launch_1d, prepare, reduce_groups, reduce_rounds, sum_partials, tree_sum,
-};
+use crate::cube::{empty, launch_1d, mean, prepare};
 
 /// `(a1, a2, b1, b2)` with SSIM = `a1·a2 / (b1·b2)`, as `cpu::terms`.
 #[cube]
@@ -108,34 +106,6 @@ fn ssim_cols_kernel(
     map[id] = (a1 * a2) / (b1 * b2);
 }
 
-/// Forward (3), the first stage of `Σ map`: `partials[g]` the sum over workgroup `g`'s elements
-/// ([`reduce_rounds`]; the mean is [`sum_partials`] of them).
-#[cube(launch)]
-fn map_partial_kernel(
-    map: &Tensor<f32>,
-    partials: &mut Tensor<f32>,
-    len: u32,
-    groups: u32,
-    #[comptime] units: usize,
-    #[comptime] levels: u32,
-) {
-    let u = UNIT_POS as usize;
-    let first = CUBE_POS * units + u;
-    let mut sums = Shared::<[f32]>::new_slice(units);
-    let mut a = 0.0f32;
-    for r in 0..reduce_rounds(len, groups, units) {
-        let i = first + r * (groups as usize) * units;
-        if i < len as usize {
-            a += map[i];
-        }
-    }
-    sums[u] = a;
-    tree_sum(&mut sums, units, levels);
-    if u == 0 {
-        partials[CUBE_POS] = sums[0];
-    }
-}
-
 /// `(∂S/∂μx, ∂S/∂E[x²], ∂S/∂E[xy])` at pixel `q`.
 #[cube]
 fn partials(stats: &Tensor<f32>, mu_y: &Tensor<f32>, syy: &Tensor<f32>, q: usize, p: usize) -> (f32, f32, f32) {
@@ -220,8 +190,8 @@ pub fn forward(x: CubeTensor, y: CubeTensor, mu_y: CubeTensor, syy: CubeTensor) 
     let stats = empty(vec![3 * v, h, w], &x);
     let map = empty(vec![v, h, w], &x);
     if pixels == 0 {
-        let mean = CubeBackend::float_zeros(Shape::from(vec![1]), &x.device, FloatDType::F32);
-        return (mean, stats);
+        let zero = CubeBackend::float_zeros(Shape::from(vec![1]), &x.device, FloatDType::F32);
+        return (zero, stats);
     }
     let (count, dim) = launch_1d(&x, pixels, 256);
     ssim_rows_kernel::launch(
@@ -247,21 +217,7 @@ pub fn forward(x: CubeTensor, y: CubeTensor, mu_y: CubeTensor, syy: CubeTensor) 
         h as u32,
         w as u32,
     );
-    let groups = reduce_groups(pixels);
-    let partials = empty(vec![groups], &x);
-    map_partial_kernel::launch(
-        &x.client,
-        CubeCount::Static(groups as u32, 1, 1),
-        CubeDim::new_1d(REDUCE_UNITS as u32),
-        map.into_tensor_arg(),
-        partials.clone().into_tensor_arg(),
-        pixels as u32,
-        groups as u32,
-        REDUCE_UNITS,
-        REDUCE_LEVELS,
-    );
-    let mean = sum_partials(partials, 1.0 / pixels as f32);
-    (mean, stats)
+    (mean(&map, None), stats)
 }
 
 /// `∂(grad · mean SSIM)/∂x` `[V, H, W]` from the forward's statistics.
