@@ -146,6 +146,9 @@ pub struct InitConfig {
     /// (3 × 3 around each) filled within `arrival_tolerance_frames` of each other
     /// ([`crate::method::arrival`]): the ghosts where two vessels cross fill at two times.
     pub arrival_seeds: bool,
+    /// The same check for the points the tracker starts from (`track_max_views`): a track then
+    /// starts only where both views fill at once.
+    pub arrival_track_starts: bool,
     /// Frames by which the two views' arrivals at an image seed may differ and still agree.
     pub arrival_tolerance_frames: f64,
 }
@@ -198,6 +201,7 @@ impl Default for InitConfig {
             n2_two_views: None,
             seed_spacing_mm_two_views: None,
             arrival_seeds: false,
+            arrival_track_starts: false,
             arrival_tolerance_frames: 0.0,
         }
     }

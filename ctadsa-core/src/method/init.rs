@@ -200,14 +200,28 @@ pub fn n2_seeds(
                 max_points: cfg.track_max_points,
                 rounds: cfg.track_rounds,
             };
-            track_from_prior(&res, &read.scored, s, settings)
+            // With `init.arrival_track_starts`, tracks start only where both views fill at once.
+            let starts: Cow<'_, [Scored]> = match arrival_pair(cfg, views, arrival) {
+                Some(maps) if cfg.arrival_track_starts => {
+                    let tolerance = cfg.arrival_tolerance_frames as f32;
+                    Cow::Owned(
+                        read.scored
+                            .iter()
+                            .filter(|(_, c, _)| arrives_together(views, maps, *c, tolerance))
+                            .copied()
+                            .collect(),
+                    )
+                }
+                _ => Cow::Borrowed(&read.scored),
+            };
+            track_from_prior(&res, &starts, s, settings)
         }
         _ => Vec::new(),
     };
     let Some(Residual { support, occluded, mut scored, .. }) = seeding else {
         return Ok(tracked);
     };
-    if let Some(maps) = arrival.filter(|m| cfg.arrival_seeds && views.len() == 2 && m.len() == 2) {
+    if let Some(maps) = arrival_pair(cfg, views, arrival).filter(|_| cfg.arrival_seeds) {
         let tolerance = cfg.arrival_tolerance_frames as f32;
         scored = scored.into_par_iter().filter(|(_, c, _)| arrives_together(views, maps, *c, tolerance)).collect();
     }
@@ -229,6 +243,12 @@ pub fn n2_seeds(
     let mut centres = best_centres(scored, spacing_mm, n, h, &mut rng);
     centres.extend(tracked);
     Ok(centres)
+}
+
+/// The two views' arrival maps, where a run of two views has them and checks seeds with them
+/// (`init.arrival_seeds`, `init.arrival_track_starts`).
+fn arrival_pair<'m>(cfg: &InitConfig, views: &[ConeBeamView], arrival: Option<&'m [Image]>) -> Option<&'m [Image]> {
+    arrival.filter(|m| (cfg.arrival_seeds || cfg.arrival_track_starts) && views.len() == 2 && m.len() == 2)
 }
 
 /// How each view's image is rid of the prior before the back-projection
@@ -646,6 +666,40 @@ pub(crate) mod tests {
         let (_, three_images) = prior_and_images(PRIOR, &[leaving], &views, &bounds);
         let three_views = n2_seeds(&cfg, &views, &three_images, Some(&prior), &bounds, 0.4, 7, None);
         assert!(three_views.unwrap().is_empty(), "more views than track_max_views: none");
+    }
+
+    /// `init.arrival_track_starts`: tracks start only where both views fill at once. With the
+    /// scene's own arrival maps the vessel leaving the prior is tracked as without them; with one
+    /// view's frames shifted (every point fills at two times) nothing is.
+    #[test]
+    fn tracks_start_where_both_views_fill_at_once() {
+        use crate::data::synth::arrival::{ArrivalSpec, arrival_map};
+        use crate::data::tree::{TreeNode, VesselTree};
+        let (_, views, _, bounds) = scene();
+        let views = &views[..2];
+        let leaving = ([2.0, 0.0, 0.5], [6.0, 4.0, 11.0]);
+        let (prior, images) = prior_and_images(PRIOR, &[leaving], views, &bounds);
+        let node = |id, parent, p| TreeNode { id, kind: 0, position_mm: DVec3::from(p), radius_mm: 0.6, parent };
+        let tree = VesselTree {
+            nodes: vec![
+                node(1, None, PRIOR.0),
+                node(2, Some(0), PRIOR.1),
+                node(3, None, leaving.0),
+                node(4, Some(2), leaving.1),
+            ],
+        };
+        let spec = ArrivalSpec { frames_per_s: 10.0, flow_mm_s: 50.0 };
+        let maps: Vec<Image> = views.iter().map(|v| arrival_map(&tree, v, &spec)).collect();
+        let mut shifted = maps.clone();
+        shifted[1].data.iter_mut().filter(|f| **f >= 0.0).for_each(|f| *f += 5.0);
+        let cfg = InitConfig { arrival_track_starts: true, ..tracks_only() };
+        let seeds =
+            |maps: Option<&[Image]>| n2_seeds(&cfg, views, &images, Some(&prior), &bounds, 0.4, 7, maps).unwrap();
+        let (unchecked, agreeing, disagreeing) = (seeds(None), seeds(Some(&maps)), seeds(Some(&shifted)));
+        eprintln!("tracked seeds: {} unchecked, {} with the scene's maps", unchecked.len(), agreeing.len());
+        assert!(unchecked.len() >= 10, "only {} seeds", unchecked.len());
+        assert!(agreeing.len() * 10 >= unchecked.len() * 9, "{} of {} tracked", agreeing.len(), unchecked.len());
+        assert!(disagreeing.is_empty(), "{} tracked from points that fill at two times", disagreeing.len());
     }
 
     /// `init.track_fit_prior_projection` / `init.track_prior_dilation_px`: the tracks read the
