@@ -13,6 +13,9 @@
 //!   (`crate::method::seed_growth`).
 //! - with `init.track_max_views`, the points of the vessels tracked from the prior through both
 //!   views' residuals besides (`crate::method::tracking`).
+//! - with two views and the case's arrival maps (`init.arrival_seeds`,
+//!   `init.arrival_track_starts`), the image seeds and the tracks' starts only where both views
+//!   fill at once (`crate::method::arrival`: the ghosts where two vessels cross fill at two times).
 //! - isotropic scales from the mean squared distance to the k nearest other centres, identity
 //!   rotations.
 
