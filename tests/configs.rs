@@ -128,10 +128,14 @@ fn shipped_configs_load_and_matrices_point_at_them() {
             "no change with three views"
         );
     }
+    // Two-view runs on cases with arrival maps check the image seeds and the track starts.
+    assert!(fine.init.arrival_seeds && fine.init.arrival_track_starts);
+    assert!(!quick.init.arrival_seeds && !quick.init.arrival_track_starts);
+    (fine.init.arrival_seeds, fine.init.arrival_track_starts) = (false, false);
     assert_eq!(
         format!("{fine:?}"),
         format!("{quick:?}"),
-        "quick-512.toml changes only the budget, the seeds' prior and count, the members and the centreline's tracing"
+        "quick-512.toml changes only the budget, the seeds' prior, count and arrival checks, the members and the centreline's tracing"
     );
     // The paper's budget (paper.toml) is quick-512's method with the paper's iterations, one view
     // per step, its hash table and field learning rate, quick-512's schedule at the same
