@@ -159,6 +159,12 @@ impl InitConfig {
         self.n2_two_views.filter(|_| views <= 2).unwrap_or(self.n2)
     }
 
+    /// Whether two-view runs check seeds against the case's arrival maps (`arrival_seeds` or
+    /// `arrival_track_starts`): the maps are then read.
+    pub fn checks_arrival(&self) -> bool {
+        self.arrival_seeds || self.arrival_track_starts
+    }
+
     /// The image seeds' spacing (mm) for a run of `views` views (`seed_spacing_mm`,
     /// `seed_spacing_mm_two_views`).
     pub fn seed_spacing_mm_for(&self, views: usize) -> f64 {

@@ -354,7 +354,7 @@ fn seeds_of(case: &Case, cfg: &Config) -> Result<Seeding> {
     models.extend(cfg.prior_only_member().filter(|m| m.init.n2_mode != SeedMode::None));
     let mut seeds: Vec<DVec3> = Vec::new();
     for m in &models {
-        let arrival = if m.init.arrival_seeds { run_arrival_maps(case, m)? } else { None };
+        let arrival = if m.init.checks_arrival() { run_arrival_maps(case, m)? } else { None };
         let init = initialise(
             &m.init,
             views.views(),

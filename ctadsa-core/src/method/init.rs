@@ -209,7 +209,7 @@ pub fn n2_seeds(
                     let tolerance = cfg.arrival_tolerance_frames as f32;
                     Cow::Owned(
                         read.scored
-                            .iter()
+                            .par_iter()
                             .filter(|(_, c, _)| arrives_together(views, maps, *c, tolerance))
                             .copied()
                             .collect(),
@@ -251,7 +251,7 @@ pub fn n2_seeds(
 /// The two views' arrival maps, where a run of two views has them and checks seeds with them
 /// (`init.arrival_seeds`, `init.arrival_track_starts`).
 fn arrival_pair<'m>(cfg: &InitConfig, views: &[ConeBeamView], arrival: Option<&'m [Image]>) -> Option<&'m [Image]> {
-    arrival.filter(|m| (cfg.arrival_seeds || cfg.arrival_track_starts) && views.len() == 2 && m.len() == 2)
+    arrival.filter(|m| cfg.checks_arrival() && views.len() == 2 && m.len() == 2)
 }
 
 /// How each view's image is rid of the prior before the back-projection

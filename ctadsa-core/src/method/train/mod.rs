@@ -161,7 +161,7 @@ impl Trainer {
         let voxel_mm = case.file.volume.voxel_mm;
         check_output_grid(&cfg, &working_box, voxel_mm)?;
         let bounds = ScaleBounds::from_voxel(voxel_mm, cfg.model.scale_min_voxels, cfg.model.scale_max_voxels);
-        let arrival = if cfg.init.arrival_seeds { run_arrival_maps(case, &cfg)? } else { None };
+        let arrival = if cfg.init.checks_arrival() { run_arrival_maps(case, &cfg)? } else { None };
         let init = initialise(
             &cfg.init,
             views.views(),
