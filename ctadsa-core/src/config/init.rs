@@ -149,6 +149,9 @@ pub struct InitConfig {
     /// The same check for the points the tracker starts from (`track_max_views`): a track then
     /// starts only where both views fill at once.
     pub arrival_track_starts: bool,
+    /// Two views and the case's arrival maps: the re-seeds of training (`densify.reseed_at`)
+    /// only where both views fill at once, as `arrival_seeds` for the image seeds.
+    pub arrival_reseeds: bool,
     /// Frames by which the two views' arrivals at an image seed may differ and still agree.
     pub arrival_tolerance_frames: f64,
 }
@@ -159,10 +162,10 @@ impl InitConfig {
         self.n2_two_views.filter(|_| views <= 2).unwrap_or(self.n2)
     }
 
-    /// Whether two-view runs check seeds against the case's arrival maps (`arrival_seeds` or
-    /// `arrival_track_starts`): the maps are then read.
+    /// Whether two-view runs check seeds against the case's arrival maps (`arrival_seeds`,
+    /// `arrival_track_starts` or `arrival_reseeds`): the maps are then read.
     pub fn checks_arrival(&self) -> bool {
-        self.arrival_seeds || self.arrival_track_starts
+        self.arrival_seeds || self.arrival_track_starts || self.arrival_reseeds
     }
 
     /// The image seeds' spacing (mm) for a run of `views` views (`seed_spacing_mm`,
@@ -208,6 +211,7 @@ impl Default for InitConfig {
             seed_spacing_mm_two_views: None,
             arrival_seeds: false,
             arrival_track_starts: false,
+            arrival_reseeds: false,
             arrival_tolerance_frames: 0.0,
         }
     }

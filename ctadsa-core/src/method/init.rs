@@ -250,7 +250,11 @@ pub fn n2_seeds(
 
 /// The two views' arrival maps, where a run of two views has them and checks seeds with them
 /// (`init.arrival_seeds`, `init.arrival_track_starts`).
-fn arrival_pair<'m>(cfg: &InitConfig, views: &[ConeBeamView], arrival: Option<&'m [Image]>) -> Option<&'m [Image]> {
+pub(crate) fn arrival_pair<'m>(
+    cfg: &InitConfig,
+    views: &[ConeBeamView],
+    arrival: Option<&'m [Image]>,
+) -> Option<&'m [Image]> {
     arrival.filter(|m| cfg.checks_arrival() && views.len() == 2 && m.len() == 2)
 }
 
@@ -764,30 +768,40 @@ pub(crate) mod tests {
     /// Two vertical vessels filled in opposite directions, A from z = −12 mm up and B from
     /// z = +12 mm down, seen in two views: their back-projections cross in two ghosts, which pair
     /// A's image in one view with B's in the other and so fill at other frames than either vessel.
-    #[test]
-    fn arrival_maps_drop_the_ghosts_of_two_views_and_keep_the_vessels() {
+    pub(crate) const FILLED_A: ([f64; 3], [f64; 3]) = ([0.0, 0.0, -12.0], [0.0, 0.0, 12.0]);
+    pub(crate) const FILLED_B: ([f64; 3], [f64; 3]) = ([8.0, 8.0, 12.0], [8.0, 8.0, -12.0]);
+    pub(crate) const CROSSING_GHOSTS: [([f64; 3], [f64; 3]); 2] =
+        [([0.0, 8.0, -12.0], [0.0, 8.0, 12.0]), ([8.0, 0.0, -12.0], [8.0, 0.0, 12.0])];
+
+    /// The two views of [`FILLED_A`] and [`FILLED_B`]: views, images, arrival maps (the vessels'
+    /// centre lines marked) and the box.
+    pub(crate) fn opposite_fills() -> (Vec<ConeBeamView>, Vec<Image>, Vec<Image>, BoxMm) {
         use crate::data::synth::arrival::{ArrivalSpec, arrival_map};
         use crate::data::tree::{TreeNode, VesselTree};
-        const A: ([f64; 3], [f64; 3]) = ([0.0, 0.0, -12.0], [0.0, 0.0, 12.0]);
-        const B: ([f64; 3], [f64; 3]) = ([8.0, 8.0, 12.0], [8.0, 8.0, -12.0]);
-        const GHOSTS: [([f64; 3], [f64; 3]); 2] =
-            [([0.0, 8.0, -12.0], [0.0, 8.0, 12.0]), ([8.0, 0.0, -12.0], [8.0, 0.0, 12.0])];
-        let (_, views, _, bounds) = scene();
-        let views = &views[..2];
-        let (_, images) = prior_and_images(A, &[B], views, &bounds);
+        let (a, b) = (FILLED_A, FILLED_B);
+        let (_, mut views, _, bounds) = scene();
+        views.truncate(2);
+        let (_, images) = prior_and_images(a, &[b], &views, &bounds);
         let node = |id, parent, p| TreeNode { id, kind: 0, position_mm: DVec3::from(p), radius_mm: 0.6, parent };
         let tree = VesselTree {
-            nodes: vec![node(1, None, A.0), node(2, Some(0), A.1), node(3, None, B.0), node(4, Some(2), B.1)],
+            nodes: vec![node(1, None, a.0), node(2, Some(0), a.1), node(3, None, b.0), node(4, Some(2), b.1)],
         };
         let spec = ArrivalSpec { frames_per_s: 10.0, flow_mm_s: 50.0 };
         let maps: Vec<Image> = views.iter().map(|v| arrival_map(&tree, v, &spec)).collect();
+        (views, images, maps, bounds)
+    }
+
+    #[test]
+    fn arrival_maps_drop_the_ghosts_of_two_views_and_keep_the_vessels() {
+        let (views, images, maps, bounds) = opposite_fills();
+        let views = &views[..];
         // Every supported voxel a seed (the count is not the question here).
         let cfg = InitConfig { n2: 100_000, n2_mode: SeedMode::AllViewsIntersect, ..InitConfig::default() };
         let seeds = |cfg: &InitConfig| n2_seeds(cfg, views, &images, None, &bounds, 0.4, 7, Some(&maps)).unwrap();
-        let ghosts = |s: &[DVec3]| GHOSTS.iter().map(|&g| seeds_on(s, g)).sum::<usize>();
+        let ghosts = |s: &[DVec3]| CROSSING_GHOSTS.iter().map(|&g| seeds_on(s, g)).sum::<usize>();
         // Vessel seeds near the centre line (the synthetic maps mark the centre lines' pixels).
         let near = |s: &[DVec3], v: ([f64; 3], [f64; 3])| s.iter().filter(|p| to_segment(**p, v.0, v.1) < 0.5).count();
-        let vessels = |s: &[DVec3]| near(s, A) + near(s, B);
+        let vessels = |s: &[DVec3]| near(s, FILLED_A) + near(s, FILLED_B);
         let (all, checked) = (seeds(&cfg), seeds(&InitConfig { arrival_seeds: true, ..cfg.clone() }));
         eprintln!(
             "ghost seeds {} -> {}, vessel seeds {} -> {}",
@@ -802,7 +816,7 @@ pub(crate) mod tests {
         // Three views are not checked (the third view rejects the ghosts), nor are runs without maps.
         let three = InitConfig { arrival_seeds: true, ..cfg.clone() };
         let (_, all_views, _, _) = scene();
-        let (_, three_images) = prior_and_images(A, &[B], &all_views, &bounds);
+        let (_, three_images) = prior_and_images(FILLED_A, &[FILLED_B], &all_views, &bounds);
         let with_maps = n2_seeds(&three, &all_views, &three_images, None, &bounds, 0.4, 7, Some(&maps)).unwrap();
         let without = n2_seeds(&cfg, &all_views, &three_images, None, &bounds, 0.4, 7, None).unwrap();
         assert_eq!(with_maps, without);

@@ -11,13 +11,15 @@ use ctadsa_render::ConeBeamView;
 use glam::DVec3;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
 
 use crate::config::InitConfig;
 use crate::data::case::images::Image;
 use crate::data::masks::{Mask, silhouettes, vessel_level, vessel_mask};
 use crate::data::volume::{BoxMm, Grid, Volume};
 use crate::error::Result;
-use crate::method::init::{back_project, best_centres, connected_to_anchors};
+use crate::method::arrival::arrives_together;
+use crate::method::init::{arrival_pair, back_project, best_centres, connected_to_anchors};
 
 /// What re-seeding looks at.
 pub struct ResidualInputs<'a> {
@@ -34,6 +36,8 @@ pub struct ResidualInputs<'a> {
     /// Voxels of the seeding grid that hold what the model already draws (e.g. its denser
     /// Gaussians): with the prior, what new seeds may connect to (`None`: the prior alone).
     pub drawn: Option<&'a Volume<u8>>,
+    /// The views' arrival maps, when the case has them (checked with `init.arrival_reseeds`).
+    pub arrival: Option<&'a [Image]>,
 }
 
 /// Up to `n` new centres (mm) in the inputs' box where every view's residual exceeds
@@ -42,7 +46,9 @@ pub struct ResidualInputs<'a> {
 /// connected to the prior as the image seeds are (`cfg.connected_to_prior_mm` for runs of at
 /// most `cfg.connected_max_views` views). With
 /// `occluded_support`, a view whose pixel lies in the prior's dilated projection supports a
-/// voxel where its target shows a vessel, if at least half of the views show residual.
+/// voxel where its target shows a vessel, if at least half of the views show residual. With
+/// `cfg.arrival_reseeds`, two views and arrival maps, a voxel is kept only where both views fill
+/// at once ([`arrives_together`]).
 pub fn residual_seeds(
     cfg: &InitConfig,
     inputs: &ResidualInputs,
@@ -86,6 +92,11 @@ pub fn residual_seeds(
             .collect()
     });
     let mut scored = back_project(&grid, inputs.views, &support, occluded.as_deref(), &residuals, prior, true);
+    if let Some(maps) = arrival_pair(cfg, inputs.views, inputs.arrival).filter(|_| cfg.arrival_reseeds) {
+        let tolerance = cfg.arrival_tolerance_frames as f32;
+        scored =
+            scored.into_par_iter().filter(|(_, c, _)| arrives_together(inputs.views, maps, *c, tolerance)).collect();
+    }
     if let Some(p) = prior
         && cfg.connected_to_prior_mm > 0.0
         && inputs.views.len() <= cfg.connected_max_views
@@ -129,6 +140,7 @@ mod tests {
             bounds: &bounds,
             voxel_mm: 0.4,
             drawn: None,
+            arrival: None,
         };
         let seeds = residual_seeds(&cfg, &inputs, 0.05, false, 500, 7).unwrap();
         let on = seeds.iter().filter(|p| to_segment(**p, hidden[0].0, hidden[0].1) < 1.5).count();
@@ -158,6 +170,7 @@ mod tests {
             bounds: &bounds,
             voxel_mm: 0.4,
             drawn: None,
+            arrival: None,
         };
         let seeds = |occluded: bool| residual_seeds(&cfg, &inputs, 0.05, occluded, 500, 7).unwrap();
         let on = |s: &[DVec3]| s.iter().filter(|p| to_segment(**p, hidden[0].0, hidden[0].1) < 1.5).count();
@@ -170,5 +183,58 @@ mod tests {
         );
         assert!(without.is_empty(), "no residual in view 0: nothing to intersect");
         assert!(on(&with) > 10 && on(&with) as f64 >= 0.8 * with.len() as f64, "{} of {}", on(&with), with.len());
+    }
+
+    /// With `init.arrival_reseeds`, the re-seeds of a model that draws nothing yet (its residual
+    /// the whole target) keep off the ghosts where two vessels filled at other times cross.
+    #[test]
+    fn arrival_maps_keep_the_reseeds_off_the_ghosts() {
+        use crate::method::init::tests::{CROSSING_GHOSTS, FILLED_A, FILLED_B, opposite_fills};
+        let (views, images, maps, bounds) = opposite_fills();
+        let blank: Vec<Vec<f32>> = images.iter().map(|i| vec![0.0; i.data.len()]).collect();
+        let inputs = ResidualInputs {
+            views: &views,
+            targets: &images,
+            renders: &blank,
+            prior: None,
+            bounds: &bounds,
+            voxel_mm: 0.4,
+            drawn: None,
+            arrival: Some(&maps),
+        };
+        let cfg = InitConfig { connected_to_prior_mm: 0.0, seed_spacing_mm: 0.0, ..InitConfig::default() };
+        let seeds = |cfg: &InitConfig| residual_seeds(cfg, &inputs, 0.05, false, 100_000, 7).unwrap();
+        let on = |s: &[DVec3], segments: &[([f64; 3], [f64; 3])], within_mm: f64| {
+            s.iter().filter(|p| segments.iter().any(|g| to_segment(**p, g.0, g.1) < within_mm)).count()
+        };
+        let (all, checked) = (seeds(&cfg), seeds(&InitConfig { arrival_reseeds: true, ..cfg.clone() }));
+        // Vessel re-seeds near the centre lines (the synthetic maps mark the centre lines' pixels).
+        let ghosts = |s: &[DVec3]| on(s, &CROSSING_GHOSTS, 1.5);
+        let vessels = |s: &[DVec3]| on(s, &[FILLED_A, FILLED_B], 0.5);
+        eprintln!(
+            "re-seeds on ghosts {} -> {}, on the vessels {} -> {}",
+            ghosts(&all),
+            ghosts(&checked),
+            vessels(&all),
+            vessels(&checked)
+        );
+        assert!(
+            ghosts(&all) >= 50 && vessels(&all) >= 50,
+            "ghosts and vessels to seed: {} / {}",
+            ghosts(&all),
+            vessels(&all)
+        );
+        assert!(3 * ghosts(&checked) <= ghosts(&all), "ghost re-seeds {} -> {}", ghosts(&all), ghosts(&checked));
+        assert!(
+            10 * vessels(&checked) >= 9 * vessels(&all),
+            "vessel re-seeds {} -> {}",
+            vessels(&all),
+            vessels(&checked)
+        );
+        // Without maps, or with the check off, the re-seeds are as before.
+        assert_eq!(
+            residual_seeds(&cfg, &ResidualInputs { arrival: None, ..inputs }, 0.05, false, 100_000, 7).unwrap(),
+            all
+        );
     }
 }

@@ -377,6 +377,9 @@ impl Trainer {
         let vals: Vec<f32> = stats.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
         t.stats = DensifyStats { sum: vals[..n].to_vec(), count: vals[n..].to_vec() };
         t.case_fingerprint = fingerprint;
+        if t.cfg.init.checks_arrival() {
+            t.arrival = crate::method::arrival::run_arrival_maps(case, &t.cfg)?;
+        }
         t.iteration = state.iteration;
         t.history = state.history;
         t.announced = t.history.len();

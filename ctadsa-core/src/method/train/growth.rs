@@ -89,6 +89,7 @@ impl Trainer {
             bounds: &self.working_box,
             voxel_mm: self.voxel_mm,
             drawn: drawn.as_ref(),
+            arrival: self.arrival.as_deref(),
         };
         let seed = cfg.run.seed ^ (self.iteration as u64).wrapping_mul(0x9E37_79B9);
         let centres =

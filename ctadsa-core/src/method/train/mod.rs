@@ -109,6 +109,9 @@ pub struct Trainer {
     /// parameters), kept while densification is active so that a densify call reuses them
     /// instead of a second field forward (at paper scale the larger part of its cost).
     last_densities: Option<Tensor<1>>,
+    /// The views' arrival maps, read when the configuration checks seeds against them
+    /// (`init.arrival_*`, [`crate::config::InitConfig::checks_arrival`]); the re-seeds use them.
+    arrival: Option<Vec<Image>>,
     /// Iterations done.
     iteration: usize,
     history: Vec<StepLog>,
@@ -191,6 +194,7 @@ impl Trainer {
         let mut trainer =
             Self::assemble(cfg, device, views, images, prior.as_ref(), model, working_box, voxel_mm, init.n1, init.n2)?;
         trainer.case_fingerprint = case.fingerprint();
+        trainer.arrival = arrival;
         Ok(trainer)
     }
 
@@ -243,6 +247,7 @@ impl Trainer {
             log_every: DEFAULT_LOG_EVERY,
             announced: 0,
             last_densities: None,
+            arrival: None,
             iteration: 0,
             history: Vec::new(),
             working_box,
