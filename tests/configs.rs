@@ -109,8 +109,8 @@ fn shipped_configs_load_and_matrices_point_at_them() {
     assert!(fine.output.centreline_voxel_mm > 0.0 && quick.output.centreline_voxel_mm == 0.0);
     assert!(fine.output.centreline_bridge_fraction > 0.0 && quick.output.centreline_bridge_fraction == 0.0);
     // Two-view runs trace it with a wider cover and lower bridges; three-view runs do not change.
-    assert_eq!(fine.output.centreline_const_mm_for(3), quick.output.centreline_const_mm);
-    assert!(fine.output.centreline_const_mm_for(2) > fine.output.centreline_const_mm_for(3));
+    assert_eq!(fine.output.centreline_const_mm_for(3, false), quick.output.centreline_const_mm);
+    assert!(fine.output.centreline_const_mm_for(2, false) > fine.output.centreline_const_mm_for(3, false));
     let bridge_two_views = fine.output.centreline_bridge_fraction_for(2);
     assert!(bridge_two_views > 0.0 && bridge_two_views < fine.output.centreline_bridge_fraction_for(3));
     fine.output.centreline_voxel_mm = quick.output.centreline_voxel_mm;

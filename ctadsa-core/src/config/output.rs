@@ -74,6 +74,11 @@ pub struct OutputConfig {
     /// centreline and raised its precision by 1.9–2.4 points on the 8 BraVa trees, on each of
     /// three seed pairs (docs/RESULTS.md, "Two views: where the centreline loses").
     pub centreline_const_mm_two_views: Option<f64>,
+    /// `centreline_const_mm` for two-view runs whose new branches are checked against the
+    /// case's arrival maps (`arrival_min_agreement` > 0 and maps for both views; absent:
+    /// `centreline_const_mm_two_views`): the check leaves out the ghosts that the wider cover
+    /// was for, so a narrower one traces more of the missing vessels.
+    pub centreline_const_mm_arrival: Option<f64>,
     /// Terminal centreline branches shorter than this are removed (mm).
     pub centreline_min_branch_mm: f64,
     /// Centre the new vessels' centreline nodes on the extracted surface (sub-voxel:
@@ -129,9 +134,11 @@ impl OutputConfig {
     }
 
     /// The centreline's cover constant (mm) for a run of `views` views (`centreline_const_mm`,
-    /// `centreline_const_mm_two_views`).
-    pub fn centreline_const_mm_for(&self, views: usize) -> f64 {
-        self.centreline_const_mm_two_views.filter(|_| views <= 2).unwrap_or(self.centreline_const_mm)
+    /// `centreline_const_mm_two_views`; `centreline_const_mm_arrival` when `arrival_checked`:
+    /// two views whose new branches the arrival maps check).
+    pub fn centreline_const_mm_for(&self, views: usize, arrival_checked: bool) -> f64 {
+        let two_views = self.centreline_const_mm_two_views.filter(|_| views <= 2).unwrap_or(self.centreline_const_mm);
+        self.centreline_const_mm_arrival.filter(|_| arrival_checked && views == 2).unwrap_or(two_views)
     }
 
     /// The bead-joining fraction for a run of `views` views (`centreline_bridge_fraction`,
@@ -164,6 +171,7 @@ impl Default for OutputConfig {
             centreline_scale: 1.5,
             centreline_const_mm: 1.0,
             centreline_const_mm_two_views: None,
+            centreline_const_mm_arrival: None,
             centreline_min_branch_mm: 1.0,
             centreline_centring: true,
             centreline_voxel_mm: 0.0,

@@ -41,11 +41,19 @@ fn two_view_runs_trace_the_centreline_with_their_own_settings() {
     )
     .unwrap();
     let out = &cfg.output;
-    assert_eq!((out.centreline_const_mm_for(3), out.centreline_bridge_fraction_for(3)), (1.0, 0.7));
-    assert_eq!((out.centreline_const_mm_for(2), out.centreline_bridge_fraction_for(2)), (2.0, 0.5));
+    assert_eq!((out.centreline_const_mm_for(3, false), out.centreline_bridge_fraction_for(3)), (1.0, 0.7));
+    assert_eq!((out.centreline_const_mm_for(2, false), out.centreline_bridge_fraction_for(2)), (2.0, 0.5));
+    assert_eq!(out.centreline_const_mm_for(2, true), 2.0, "no arrival setting: the two-view one");
+    let arrival = OutputConfig { centreline_const_mm_arrival: Some(1.5), ..out.clone() };
+    assert_eq!((arrival.centreline_const_mm_for(2, true), arrival.centreline_const_mm_for(2, false)), (1.5, 2.0));
+    assert_eq!(arrival.centreline_const_mm_for(3, true), 1.0, "three views are not checked");
     let plain = OutputConfig { centreline_const_mm: 1.5, ..OutputConfig::default() };
-    assert_eq!(plain.centreline_const_mm_for(2), 1.5, "absent: the general setting");
-    for bad in ["output.centreline_bridge_fraction_two_views=1.0", "output.centreline_const_mm_two_views=-1"] {
+    assert_eq!(plain.centreline_const_mm_for(2, false), 1.5, "absent: the general setting");
+    for bad in [
+        "output.centreline_bridge_fraction_two_views=1.0",
+        "output.centreline_const_mm_two_views=-1",
+        "output.centreline_const_mm_arrival=-1",
+    ] {
         let err = Config::load(None, &[bad.into()]).unwrap_err().to_string();
         assert!(err.contains(bad.split('=').next().unwrap()), "{err}");
     }

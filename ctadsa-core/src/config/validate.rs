@@ -265,6 +265,7 @@ impl Config {
         for (v, k) in [
             (self.output.centreline_const_mm, "output.centreline_const_mm"),
             (self.output.centreline_const_mm_two_views.unwrap_or(0.0), "output.centreline_const_mm_two_views"),
+            (self.output.centreline_const_mm_arrival.unwrap_or(0.0), "output.centreline_const_mm_arrival"),
             (self.output.centreline_min_branch_mm, "output.centreline_min_branch_mm"),
         ] {
             check((0.0..=100.0).contains(&v), k, "must be in [0, 100] mm")?;

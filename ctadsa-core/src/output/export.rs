@@ -580,9 +580,16 @@ fn write_centreline_of(
     // The smallest component kept holds the same volume on either grid.
     let min_component_voxels =
         (defaults.min_component_voxels as f64 * (working_voxel / traced_voxel).powi(3)).round() as usize;
+    // With three views or more the third view already rejects the ghosts.
+    let checked = out.arrival_min_agreement > 0.0 && views.len() == 2;
+    let arrival = arrival_maps.filter(|_| checked).map(|maps| ArrivalCheck {
+        maps,
+        tolerance_frames: out.arrival_tolerance_frames,
+        min_agreement: out.arrival_min_agreement,
+    });
     let params = SkeletonParams {
         scale: out.centreline_scale,
-        const_mm: out.centreline_const_mm_for(views.len()),
+        const_mm: out.centreline_const_mm_for(views.len(), arrival.is_some()),
         min_branch_mm: out.centreline_min_branch_mm,
         min_component_voxels,
         ..defaults
@@ -616,13 +623,6 @@ fn write_centreline_of(
         topology_scores(&completed, &true_solid, &tree.segments(), skeleton)
     });
     let truth = truth.and_then(|t| t.missing_centreline.as_deref().zip(t.centreline.as_deref()));
-    // With three views or more the third view already rejects the ghosts.
-    let checked = out.arrival_min_agreement > 0.0 && views.len() == 2;
-    let arrival = arrival_maps.filter(|_| checked).map(|maps| ArrivalCheck {
-        maps,
-        tolerance_frames: out.arrival_tolerance_frames,
-        min_agreement: out.arrival_min_agreement,
-    });
     let (summary, confidence) = write_centreline(dir, &tree, views, truth, out.min_confidence, arrival)?;
     let at_vertices = vertex_confidence(&surface.mesh, &tree, &confidence);
     write_mesh_confidence(&dir.join(MESH_CONFIDENCE), &surface.mesh, &at_vertices)?;
