@@ -111,6 +111,13 @@ fn shipped_configs_load_and_matrices_point_at_them() {
     // Two-view runs trace it with a wider cover and lower bridges; three-view runs do not change.
     assert_eq!(fine.output.centreline_const_mm_for(3, false), quick.output.centreline_const_mm);
     assert!(fine.output.centreline_const_mm_for(2, false) > fine.output.centreline_const_mm_for(3, false));
+    // With arrival maps checking the new branches, a narrower one (still wider than three views').
+    let arrival = fine.output.centreline_const_mm_for(2, true);
+    assert!(
+        arrival < fine.output.centreline_const_mm_for(2, false)
+            && arrival > fine.output.centreline_const_mm_for(3, false)
+    );
+    fine.output.centreline_const_mm_arrival = None;
     let bridge_two_views = fine.output.centreline_bridge_fraction_for(2);
     assert!(bridge_two_views > 0.0 && bridge_two_views < fine.output.centreline_bridge_fraction_for(3));
     fine.output.centreline_voxel_mm = quick.output.centreline_voxel_mm;
@@ -128,10 +135,12 @@ fn shipped_configs_load_and_matrices_point_at_them() {
             "no change with three views"
         );
     }
-    // Two-view runs on cases with arrival maps check the image seeds and the track starts.
-    assert!(fine.init.arrival_seeds && fine.init.arrival_track_starts);
-    assert!(!quick.init.arrival_seeds && !quick.init.arrival_track_starts);
-    (fine.init.arrival_seeds, fine.init.arrival_track_starts) = (false, false);
+    // Two-view runs on cases with arrival maps check the image seeds, the track starts and the
+    // re-seeds, and trace the centreline they check with a narrower cover than other two-view runs.
+    assert!(fine.init.arrival_seeds && fine.init.arrival_track_starts && fine.init.arrival_reseeds);
+    assert!(!quick.init.arrival_seeds && !quick.init.arrival_track_starts && !quick.init.arrival_reseeds);
+    (fine.init.arrival_seeds, fine.init.arrival_track_starts, fine.init.arrival_reseeds) = (false, false, false);
+    assert!(quick.output.centreline_const_mm_arrival.is_none());
     assert_eq!(
         format!("{fine:?}"),
         format!("{quick:?}"),

@@ -87,6 +87,33 @@ fn arrival_maps_are_written_read_and_check_new_branches_in_two_views() {
     };
     let (unchecked, checked) = (ghosts(false), ghosts(true));
     assert!(checked < unchecked, "ghost seeds {unchecked} -> {checked}");
+    // The re-seeds of training (`densify.reseed_at`, every candidate taken): with
+    // `init.arrival_reseeds` those whose two views fill at different times are dropped.
+    let seeds = |checked: bool| {
+        let config = concat!(env!("CARGO_MANIFEST_DIR"), "/../configs/quick.toml");
+        let (out, arrival) = (format!("reseed-{checked}"), format!("init.arrival_reseeds={checked}"));
+        let mut args = vec!["complete", "--case", "case", "--config", config, "--out", &out];
+        for s in [
+            "run.views=[0,1]",
+            "run.iterations=4",
+            "run.prior_only_member=false",
+            "init.n1=600",
+            "init.n2=300",
+            "densify.reseed_at=[2]",
+            "densify.reseed_n=100000",
+            "densify.max_gaussians=1000000",
+            "output.metric_samples=2000",
+            &arrival,
+        ] {
+            args.extend(["--set", s]);
+        }
+        ok(&dir, &args);
+        let summary: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(dir.join(&out).join("summary.json")).unwrap()).unwrap();
+        summary["n2"].as_u64().unwrap()
+    };
+    let (unchecked, checked) = (seeds(false), seeds(true));
+    assert!(checked < unchecked && unchecked > 300, "image seeds and re-seeds {unchecked} -> {checked}");
     // Through DICOM: export-dicom writes time-resolved runs (the contrast of each pixel turns on
     // after its arrival), import-dsa --arrival derives the maps back: the same frames wherever
     // the view shows a vessel, the frontal run mirrored and flipped back on the way.
