@@ -206,14 +206,7 @@ pub fn n2_seeds(
             // With `init.arrival_track_starts`, tracks start only where both views fill at once.
             let starts: Cow<'_, [Scored]> = match arrival_pair(cfg, views, arrival) {
                 Some(maps) if cfg.arrival_track_starts => {
-                    let tolerance = cfg.arrival_tolerance_frames as f32;
-                    Cow::Owned(
-                        read.scored
-                            .par_iter()
-                            .filter(|(_, c, _)| arrives_together(views, maps, *c, tolerance))
-                            .copied()
-                            .collect(),
-                    )
+                    Cow::Owned(arriving(cfg, views, maps, read.scored.par_iter().copied()))
                 }
                 _ => Cow::Borrowed(&read.scored),
             };
@@ -225,8 +218,7 @@ pub fn n2_seeds(
         return Ok(tracked);
     };
     if let Some(maps) = arrival_pair(cfg, views, arrival).filter(|_| cfg.arrival_seeds) {
-        let tolerance = cfg.arrival_tolerance_frames as f32;
-        scored = scored.into_par_iter().filter(|(_, c, _)| arrives_together(views, maps, *c, tolerance)).collect();
+        scored = arriving(cfg, views, maps, scored);
     }
     // Not for the mask-only mode, which ignores the prior by design.
     let (mut spacing_mm, mut n) = (cfg.seed_spacing_mm_for(views.len()), n2);
@@ -248,8 +240,20 @@ pub fn n2_seeds(
     Ok(centres)
 }
 
+/// The `candidates` whose points fill at once in both `views` ([`arrives_together`] with the
+/// two views' arrival `maps`, within `init.arrival_tolerance_frames`).
+pub(crate) fn arriving(
+    cfg: &InitConfig,
+    views: &[ConeBeamView],
+    maps: &[Image],
+    candidates: impl IntoParallelIterator<Item = Scored>,
+) -> Vec<Scored> {
+    let tolerance = cfg.arrival_tolerance_frames as f32;
+    candidates.into_par_iter().filter(|(_, c, _)| arrives_together(views, maps, *c, tolerance)).collect()
+}
+
 /// The two views' arrival maps, where a run of two views has them and checks seeds with them
-/// (`init.arrival_seeds`, `init.arrival_track_starts`).
+/// (`init.arrival_seeds`, `init.arrival_track_starts`, `init.arrival_reseeds`).
 pub(crate) fn arrival_pair<'m>(
     cfg: &InitConfig,
     views: &[ConeBeamView],

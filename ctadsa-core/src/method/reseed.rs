@@ -11,15 +11,13 @@ use ctadsa_render::ConeBeamView;
 use glam::DVec3;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
-use rayon::prelude::*;
 
 use crate::config::InitConfig;
 use crate::data::case::images::Image;
 use crate::data::masks::{Mask, silhouettes, vessel_level, vessel_mask};
 use crate::data::volume::{BoxMm, Grid, Volume};
 use crate::error::Result;
-use crate::method::arrival::arrives_together;
-use crate::method::init::{arrival_pair, back_project, best_centres, connected_to_anchors};
+use crate::method::init::{arrival_pair, arriving, back_project, best_centres, connected_to_anchors};
 
 /// What re-seeding looks at.
 pub struct ResidualInputs<'a> {
@@ -48,7 +46,7 @@ pub struct ResidualInputs<'a> {
 /// `occluded_support`, a view whose pixel lies in the prior's dilated projection supports a
 /// voxel where its target shows a vessel, if at least half of the views show residual. With
 /// `cfg.arrival_reseeds`, two views and arrival maps, a voxel is kept only where both views fill
-/// at once ([`arrives_together`]).
+/// at once ([`crate::method::arrival::arrives_together`]).
 pub fn residual_seeds(
     cfg: &InitConfig,
     inputs: &ResidualInputs,
@@ -93,9 +91,7 @@ pub fn residual_seeds(
     });
     let mut scored = back_project(&grid, inputs.views, &support, occluded.as_deref(), &residuals, prior, true);
     if let Some(maps) = arrival_pair(cfg, inputs.views, inputs.arrival).filter(|_| cfg.arrival_reseeds) {
-        let tolerance = cfg.arrival_tolerance_frames as f32;
-        scored =
-            scored.into_par_iter().filter(|(_, c, _)| arrives_together(inputs.views, maps, *c, tolerance)).collect();
+        scored = arriving(cfg, inputs.views, maps, scored);
     }
     if let Some(p) = prior
         && cfg.connected_to_prior_mm > 0.0
