@@ -206,10 +206,13 @@ pub fn bench_train(
 ) -> Result<TrainBenchReport> {
     use ctadsa_core::config::Config;
     use ctadsa_core::data::case::Case;
+    // The demo case lives in a temporary folder, removed when the bench returns.
+    let demo_dir;
     let case_dir = match case {
         Some(d) => d,
         None => {
-            let d = std::env::temp_dir().join(format!("ctadsa-bench-case-{}", std::process::id()));
+            demo_dir = tempfile::Builder::new().prefix("ctadsa-bench-case-").tempdir()?;
+            let d = demo_dir.path().to_path_buf();
             eprintln!("synthesising the demo case into {}", d.display());
             ctadsa_core::data::synth::synthesize(&ctadsa_core::data::synth::SynthConfig::demo(), &d, &mut |_| {})?;
             d
