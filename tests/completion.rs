@@ -522,6 +522,23 @@ fn reseeding_adds_gaussians_where_the_views_are_unexplained_and_resumes_exactly(
     let mut member = cfg.clone();
     member.run.prior_only_member = true;
     assert!(member.prior_only_member().unwrap().densify.reseed_at.is_empty(), "the prior-only member does not re-seed");
+    // With `run.member_reseeds` it keeps the re-seeds, but only where arrival maps check them:
+    // this case has none, so the member's model stays as it is at the re-seeding step.
+    member.run.member_reseeds = true;
+    let member = member.prior_only_member().unwrap();
+    assert_eq!(member.densify.reseed_at, [15]);
+    let added_by = |cfg: Config| {
+        let mut m = Trainer::new(tiny_case(), cfg, Device::ndarray().autodiff()).unwrap();
+        let before = m.model().len();
+        while m.iteration() < 16 {
+            m.step().unwrap();
+        }
+        m.model().len() - before
+    };
+    let mut unchecked = member.clone();
+    unchecked.densify.reseed_arrival_only = false;
+    assert!(added_by(unchecked) > 0, "a member that re-seeds unchecked adds Gaussians here");
+    assert_eq!(added_by(member), 0, "no arrival maps: the member does not re-seed");
     assert_resume_is_exact(cfg, 10, "reseed");
 }
 

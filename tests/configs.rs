@@ -140,6 +140,10 @@ fn shipped_configs_load_and_matrices_point_at_them() {
     assert!(fine.init.arrival_seeds && fine.init.arrival_track_starts && fine.init.arrival_reseeds);
     assert!(!quick.init.arrival_seeds && !quick.init.arrival_track_starts && !quick.init.arrival_reseeds);
     (fine.init.arrival_seeds, fine.init.arrival_track_starts, fine.init.arrival_reseeds) = (false, false, false);
+    // And the prior-only member re-seeds too, where the maps check its re-seeds.
+    assert!(fine.run.member_reseeds && !quick.run.member_reseeds);
+    assert!(fine.prior_only_member().unwrap().densify.reseed_arrival_only);
+    fine.run.member_reseeds = false;
     assert!(quick.output.centreline_const_mm_arrival.is_none());
     assert_eq!(
         format!("{fine:?}"),

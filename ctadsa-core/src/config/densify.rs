@@ -38,6 +38,10 @@ pub struct DensifyConfig {
     /// where its target shows a vessel, when at least half of the views show residual there (the
     /// model may draw a vessel behind the prior as a brighter prior, leaving no residual).
     pub reseed_occluded: bool,
+    /// Re-seed only where the case's arrival maps check the re-seeds (`init.arrival_reseeds`,
+    /// two views, a case with maps); set for the prior-only member by `run.member_reseeds`.
+    #[serde(skip)]
+    pub reseed_arrival_only: bool,
 }
 
 impl Default for DensifyConfig {
@@ -56,6 +60,7 @@ impl Default for DensifyConfig {
             reseed_mask_threshold: 0.0,
             reseed_from_model: false,
             reseed_occluded: false,
+            reseed_arrival_only: false,
         }
     }
 }

@@ -21,7 +21,7 @@ impl Config {
 
     /// The configuration of the prior-only member (`run.prior_only_member`): this one without
     /// image seeds (with `run.member_tracks_max_views`, the tracked seeds its only ones) and
-    /// without re-seeding. `None` when the member is off, the run has no image seeds (the member would
+    /// without re-seeding (with `run.member_reseeds`, re-seeding only where the arrival maps check it). `None` when the member is off, the run has no image seeds (the member would
     /// be the run itself) or no Gaussians on the prior (the member would have none).
     pub fn prior_only_member(&self) -> Option<Config> {
         let seeded =
@@ -37,7 +37,12 @@ impl Config {
         } else {
             member.init.n2_mode = SeedMode::None;
         }
-        member.densify.reseed_at.clear();
+        if self.run.member_reseeds {
+            member.densify.reseed_arrival_only = true;
+        } else {
+            member.densify.reseed_at.clear();
+        }
+        member.run.member_reseeds = false;
         member.run.prior_only_member = false;
         member.run.member_seeds.clear();
         member.run.member_tracks_max_views = 0;

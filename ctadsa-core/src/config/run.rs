@@ -38,6 +38,11 @@ pub struct RunConfig {
     /// more of the missing vessels while, in the mean, the image-seeded models' ghosts still
     /// fall to half their density. 0 = the member has no image seeds.
     pub member_tracks_max_views: usize,
+    /// The prior-only member re-seeds from the residual during training as the image-seeded
+    /// models do (`densify.reseed_at`), where the case's arrival maps check the re-seeds
+    /// (`init.arrival_reseeds`, two views, a case with maps): unchecked, re-seeds from two views
+    /// would bring the member the ghosts it is there to outvote. Off: the member never re-seeds.
+    pub member_reseeds: bool,
     /// The prior-only member stops after this many steps of the run's schedule (its learning
     /// rates, densification and loss terms keep the run's steps); 0 = `run.iterations`. Trained
     /// as long as a long run's image-seeded models, the member fits the views with its own seeds
@@ -80,6 +85,7 @@ impl Default for RunConfig {
             prior_only_member: false,
             member_seeds: vec![],
             member_tracks_max_views: 0,
+            member_reseeds: false,
             member_iterations: 0,
             stop_after: None,
         }

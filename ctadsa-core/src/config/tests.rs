@@ -96,6 +96,16 @@ fn the_prior_only_member_is_the_run_without_image_seeds() {
     assert_eq!((tracked.init.n2_for(2), tracked.init.n2_for(3), tracked.init.n2_mode), (0, 0, on.init.n2_mode));
     assert_eq!(tracked.init.track_max_views, 2, "its seeds are the tracks of runs of up to 2 views");
     assert!(tracked.densify.reseed_at.is_empty() && tracked.run.member_tracks_max_views == 0);
+    let reseeding = ["run.prior_only_member=true", "densify.reseed_at=[5, 9]"].map(String::from);
+    let reseeds = |extra: &str| {
+        let overrides: Vec<String> = reseeding.iter().cloned().chain([extra.to_string()]).collect();
+        Config::load(None, &overrides).unwrap().prior_only_member().expect("a member").densify.reseed_at
+    };
+    assert!(reseeds("run.member_reseeds=false").is_empty(), "the member does not re-seed by default");
+    assert_eq!(reseeds("run.member_reseeds=true"), [5, 9], "run.member_reseeds keeps the run's re-seeds");
+    let member = Config::load(None, &["run.prior_only_member=true".into(), "run.member_reseeds=true".into()]).unwrap();
+    let member = member.prior_only_member().expect("a member");
+    assert!(member.densify.reseed_arrival_only && !member.run.member_reseeds, "where the arrival maps check them");
     assert_eq!((tracked.run.stop_after, tracked.run.steps_to_train()), (None, tracked.run.iterations));
     let short = Config::load(
         None,
@@ -140,7 +150,8 @@ fn seed_members_differ_from_the_run_only_in_their_seed() {
 
 #[test]
 fn a_config_can_start_from_a_base_file() {
-    let dir = std::env::temp_dir().join(format!("ctadsa-cfg-{}", std::process::id()));
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
     std::fs::create_dir_all(dir.join("sub")).unwrap();
     std::fs::write(dir.join("base.toml"), "[run]\niterations = 77\nseed = 3\n[loss]\nfn_weight = 0.5\n").unwrap();
     std::fs::write(dir.join("sub/child.toml"), "base = \"../base.toml\"\n[run]\nseed = 9\n").unwrap();

@@ -101,7 +101,7 @@ fn verify_files(dir: &Path, recorded: &BTreeMap<String, FileDigest>) -> Result<(
 
 /// The configuration less what may change on resume (`[output]`, `run.iterations`,
 /// `run.checkpoint_every`, `run.prior_only_member`, `run.member_seeds`,
-/// `run.member_tracks_max_views`, `run.member_iterations`), as TOML.
+/// `run.member_tracks_max_views`, `run.member_reseeds`, `run.member_iterations`), as TOML.
 fn training_settings(cfg: &Config) -> String {
     let mut c = cfg.clone();
     c.output = Default::default();
@@ -111,6 +111,7 @@ fn training_settings(cfg: &Config) -> String {
     c.run.prior_only_member = false;
     c.run.member_seeds.clear();
     c.run.member_tracks_max_views = 0;
+    c.run.member_reseeds = false;
     c.run.member_iterations = 0;
     c.to_toml()
 }

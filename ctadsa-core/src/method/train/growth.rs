@@ -64,12 +64,14 @@ impl Trainer {
     /// Re-seeding now (`densify.reseed_at`, [`crate::method::reseed`]): Gaussians added where
     /// every view's residual is bright; returns how many. Their scales come from their `init.knn`
     /// nearest new neighbours (at most a voxel), their rotations are the identity and their Adam
-    /// moments zero.
+    /// moments zero. None with `densify.reseed_arrival_only` unless the arrival maps check them.
     pub fn reseed(&mut self) -> Result<usize> {
         let cfg = &self.cfg;
         let room = cfg.densify.max_gaussians.saturating_sub(self.model().len());
         let n = cfg.densify.reseed_n.min(room);
-        if n == 0 {
+        let checked = cfg.init.arrival_reseeds
+            && crate::method::init::arrival_pair(&cfg.init, self.views.views(), self.arrival.as_deref()).is_some();
+        if n == 0 || (cfg.densify.reseed_arrival_only && !checked) {
             return Ok(0);
         }
         let renders = self.render_all()?;
