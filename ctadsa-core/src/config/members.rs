@@ -21,8 +21,9 @@ impl Config {
 
     /// The configuration of the prior-only member (`run.prior_only_member`): this one without
     /// image seeds (with `run.member_tracks_max_views`, the tracked seeds its only ones) and
-    /// without re-seeding (with `run.member_reseeds`, re-seeding only where the arrival maps check it). `None` when the member is off, the run has no image seeds (the member would
-    /// be the run itself) or no Gaussians on the prior (the member would have none).
+    /// without re-seeding (with `run.member_reseeds`, re-seeding only where the arrival maps
+    /// check it). `None` when the member is off, the run has no image seeds (the member would be
+    /// the run itself) or no Gaussians on the prior (the member would have none).
     pub fn prior_only_member(&self) -> Option<Config> {
         let seeded =
             (self.init.n2 > 0 || self.init.n2_two_views.is_some_and(|n| n > 0)) && self.init.n2_mode != SeedMode::None;

@@ -38,6 +38,16 @@ pub struct ResidualInputs<'a> {
     pub arrival: Option<&'a [Image]>,
 }
 
+/// The two views' arrival maps where they check the re-seeds (`init.arrival_reseeds`, two views,
+/// maps for both).
+pub(crate) fn reseed_arrival_maps<'m>(
+    cfg: &InitConfig,
+    views: &[ConeBeamView],
+    arrival: Option<&'m [Image]>,
+) -> Option<&'m [Image]> {
+    arrival_pair(cfg, views, arrival).filter(|_| cfg.arrival_reseeds)
+}
+
 /// Up to `n` new centres (mm) in the inputs' box where every view's residual exceeds
 /// `mask_threshold` × the view's vessel level, outside the prior, spaced as the image seeds
 /// ([`InitConfig::seed_spacing_mm_for`] the number of views; 0: the best-scored voxels), kept
@@ -90,7 +100,7 @@ pub fn residual_seeds(
             .collect()
     });
     let mut scored = back_project(&grid, inputs.views, &support, occluded.as_deref(), &residuals, prior, true);
-    if let Some(maps) = arrival_pair(cfg, inputs.views, inputs.arrival).filter(|_| cfg.arrival_reseeds) {
+    if let Some(maps) = reseed_arrival_maps(cfg, inputs.views, inputs.arrival) {
         scored = arriving(cfg, inputs.views, maps, scored);
     }
     if let Some(p) = prior

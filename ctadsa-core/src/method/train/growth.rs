@@ -69,8 +69,9 @@ impl Trainer {
         let cfg = &self.cfg;
         let room = cfg.densify.max_gaussians.saturating_sub(self.model().len());
         let n = cfg.densify.reseed_n.min(room);
-        let checked = cfg.init.arrival_reseeds
-            && crate::method::init::arrival_pair(&cfg.init, self.views.views(), self.arrival.as_deref()).is_some();
+        let checked =
+            crate::method::reseed::reseed_arrival_maps(&cfg.init, self.views.views(), self.arrival.as_deref())
+                .is_some();
         if n == 0 || (cfg.densify.reseed_arrival_only && !checked) {
             return Ok(0);
         }
