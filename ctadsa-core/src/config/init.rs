@@ -154,6 +154,11 @@ pub struct InitConfig {
     pub arrival_reseeds: bool,
     /// Frames by which the two views' arrivals at an image seed may differ and still agree.
     pub arrival_tolerance_frames: f64,
+    /// Where the prior's projection covers a point's 3 × 3 pixels in a view, that view cannot
+    /// tell the point's arrival (the prior, filling first, shows its own frame there): the seed
+    /// checks above then let the other view's filled pixels decide alone (the new centreline
+    /// branches, `output.arrival_min_agreement`, are checked as before).
+    pub arrival_prior_unknown: bool,
 }
 
 impl InitConfig {
@@ -213,6 +218,7 @@ impl Default for InitConfig {
             arrival_track_starts: false,
             arrival_reseeds: false,
             arrival_tolerance_frames: 0.0,
+            arrival_prior_unknown: false,
         }
     }
 }

@@ -39,7 +39,7 @@ use crate::eval::metrics::nearest_distances;
 use crate::eval::new_surface::{NewSurface, new_surface};
 use crate::eval::score::CaseTruth;
 use crate::eval::surface_metrics::{RECALL_SLACK_MM, centreline_points};
-use crate::method::arrival::run_arrival_maps;
+use crate::method::arrival::seed_arrival_maps;
 use crate::method::init::initialise;
 use crate::method::model::ScaleBounds;
 use crate::method::train::{prepare_views, run_working_box};
@@ -354,7 +354,7 @@ fn seeds_of(case: &Case, cfg: &Config) -> Result<Seeding> {
     models.extend(cfg.prior_only_member().filter(|m| m.init.n2_mode != SeedMode::None));
     let mut seeds: Vec<DVec3> = Vec::new();
     for m in &models {
-        let arrival = if m.init.checks_arrival() { run_arrival_maps(case, m)? } else { None };
+        let arrival = if m.init.checks_arrival() { seed_arrival_maps(case, m)? } else { None };
         let init = initialise(
             &m.init,
             views.views(),

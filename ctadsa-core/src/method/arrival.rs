@@ -12,7 +12,13 @@ use glam::DVec3;
 use crate::config::Config;
 use crate::data::case::Case;
 use crate::data::case::images::{Image, NO_ARRIVAL, bin_arrival};
+use crate::data::masks::{prior_solid, silhouettes};
+use crate::data::volume::Grid;
 use crate::error::Result;
+
+/// Value of a run's arrival-map pixel that the prior's projection covers, where
+/// `init.arrival_prior_unknown` says the prior hides what fills behind it.
+pub const HIDDEN_BY_PRIOR: f32 = -2.0;
 
 /// The arrival maps of a run's views (its `run.views`, binned by `run.image_binning`: a binned
 /// pixel keeps the earliest frame of its block), when the case has one for every view.
@@ -20,6 +26,33 @@ pub fn run_arrival_maps(case: &Case, cfg: &Config) -> Result<Option<Vec<Image>>>
     let case = if cfg.run.views.is_empty() { case.clone() } else { case.select_views(&cfg.run.views)? };
     let Some(maps) = case.arrival_maps()? else { return Ok(None) };
     Ok(Some(maps.iter().map(|m| bin_arrival(m, cfg.run.image_binning.max(1))).collect()))
+}
+
+/// The maps the seed checks read: [`run_arrival_maps`], and with `init.arrival_prior_unknown`
+/// and a prior mesh the pixels of the prior's projection (voxelised at the case's voxel) set to
+/// [`HIDDEN_BY_PRIOR`].
+pub fn seed_arrival_maps(case: &Case, cfg: &Config) -> Result<Option<Vec<Image>>> {
+    let Some(mut maps) = run_arrival_maps(case, cfg)? else { return Ok(None) };
+    let case = if cfg.run.views.is_empty() { case.clone() } else { case.select_views(&cfg.run.views)? };
+    if cfg.init.arrival_prior_unknown
+        && let Some(prior) = case.prior_mesh()?
+    {
+        let b = cfg.run.image_binning.max(1);
+        let views: Vec<ConeBeamView> =
+            case.views.views().iter().map(|v| v.binned(b)).collect::<std::result::Result<_, _>>()?;
+        let grid = Grid::covering(&case.file.volume.bounds(), case.file.volume.voxel_mm)?;
+        let solid = prior_solid(&prior, grid);
+        for (map, covered) in maps.iter_mut().zip(silhouettes(&solid, &views)) {
+            if covered.data.len() == map.data.len() {
+                for (px, &c) in map.data.iter_mut().zip(&covered.data) {
+                    if c {
+                        *px = HIDDEN_BY_PRIOR;
+                    }
+                }
+            }
+        }
+    }
+    Ok(Some(maps))
 }
 
 /// The frames of the 3 × 3 pixels around `view`'s projection of `p` (a pixel no vessel fills,
@@ -38,9 +71,15 @@ pub fn frames_around(view: &ConeBeamView, map: &Image, p: DVec3) -> [f32; 9] {
 }
 
 /// Whether some filled pixel of `first` and some of `second` filled within `tolerance_frames`
-/// of each other.
+/// of each other; a side whose pixels are all [`HIDDEN_BY_PRIOR`] or unfilled, at least one
+/// hidden, cannot tell, and agrees with any side that has a filled or hidden pixel.
 pub fn frames_agree(first: &[f32; 9], second: &[f32; 9], tolerance_frames: f32) -> bool {
     let filled = |f: &&f32| **f >= 0.0;
+    let hidden = |s: &[f32; 9]| !s.iter().any(|f| filled(&f)) && s.contains(&HIDDEN_BY_PRIOR);
+    let seen = |s: &[f32; 9]| s.iter().any(|&f| f >= 0.0 || f == HIDDEN_BY_PRIOR);
+    if (hidden(first) && seen(second)) || (hidden(second) && seen(first)) {
+        return true;
+    }
     first.iter().filter(filled).any(|f| second.iter().filter(filled).any(|g| (f - g).abs() <= tolerance_frames))
 }
 
@@ -50,4 +89,31 @@ pub fn frames_agree(first: &[f32; 9], second: &[f32; 9], tolerance_frames: f32) 
 /// a view (the prior's, say) shows that one's frame there and fails.
 pub fn arrives_together(views: &[ConeBeamView], maps: &[Image], p: DVec3, tolerance_frames: f32) -> bool {
     frames_agree(&frames_around(&views[0], &maps[0], p), &frames_around(&views[1], &maps[1], p), tolerance_frames)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn around(frames: &[f32]) -> [f32; 9] {
+        let mut out = [NO_ARRIVAL; 9];
+        out[..frames.len()].copy_from_slice(frames);
+        out
+    }
+
+    /// Frames agree within the tolerance; a side the prior hides agrees with any side that
+    /// shows something, but not with one where nothing fills; a side with a filled pixel beside
+    /// the prior's is judged by that pixel.
+    #[test]
+    fn a_side_hidden_by_the_prior_cannot_disagree() {
+        let (three, five, hidden) = (around(&[3.0]), around(&[5.0, NO_ARRIVAL]), around(&[HIDDEN_BY_PRIOR]));
+        assert!(frames_agree(&three, &around(&[3.0]), 0.0));
+        assert!(!frames_agree(&three, &five, 0.0));
+        assert!(frames_agree(&three, &five, 2.0));
+        assert!(frames_agree(&hidden, &five, 0.0) && frames_agree(&five, &hidden, 0.0));
+        assert!(frames_agree(&hidden, &hidden, 0.0));
+        assert!(!frames_agree(&hidden, &[NO_ARRIVAL; 9], 0.0));
+        assert!(!frames_agree(&around(&[HIDDEN_BY_PRIOR, 5.0]), &three, 0.0));
+        assert!(frames_agree(&around(&[HIDDEN_BY_PRIOR, 3.0]), &three, 0.0));
+    }
 }

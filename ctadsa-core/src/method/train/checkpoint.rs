@@ -379,7 +379,7 @@ impl Trainer {
         t.stats = DensifyStats { sum: vals[..n].to_vec(), count: vals[n..].to_vec() };
         t.case_fingerprint = fingerprint;
         if t.cfg.init.checks_arrival() {
-            t.arrival = crate::method::arrival::run_arrival_maps(case, &t.cfg)?;
+            t.arrival = crate::method::arrival::seed_arrival_maps(case, &t.cfg)?;
         }
         t.iteration = state.iteration;
         t.history = state.history;

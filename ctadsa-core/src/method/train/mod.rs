@@ -25,7 +25,7 @@ use crate::data::mesh::TriMesh;
 use crate::data::mesh::sample::sample_surface;
 use crate::data::volume::BoxMm;
 use crate::error::Result;
-use crate::method::arrival::run_arrival_maps;
+use crate::method::arrival::seed_arrival_maps;
 use crate::method::densify::DensifyStats;
 use crate::method::init::initialise;
 use crate::method::loss::LossTargets;
@@ -164,7 +164,7 @@ impl Trainer {
         let voxel_mm = case.file.volume.voxel_mm;
         check_output_grid(&cfg, &working_box, voxel_mm)?;
         let bounds = ScaleBounds::from_voxel(voxel_mm, cfg.model.scale_min_voxels, cfg.model.scale_max_voxels);
-        let arrival = if cfg.init.checks_arrival() { run_arrival_maps(case, &cfg)? } else { None };
+        let arrival = if cfg.init.checks_arrival() { seed_arrival_maps(case, &cfg)? } else { None };
         let init = initialise(
             &cfg.init,
             views.views(),
