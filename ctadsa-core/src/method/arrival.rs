@@ -23,9 +23,14 @@ pub const HIDDEN_BY_PRIOR: f32 = -2.0;
 /// The arrival maps of a run's views (its `run.views`, binned by `run.image_binning`: a binned
 /// pixel keeps the earliest frame of its block), when the case has one for every view.
 pub fn run_arrival_maps(case: &Case, cfg: &Config) -> Result<Option<Vec<Image>>> {
-    let case = if cfg.run.views.is_empty() { case.clone() } else { case.select_views(&cfg.run.views)? };
+    let case = run_case(case, cfg)?;
     let Some(maps) = case.arrival_maps()? else { return Ok(None) };
     Ok(Some(maps.iter().map(|m| bin_arrival(m, cfg.run.image_binning.max(1))).collect()))
+}
+
+/// The case with only the run's views (`run.views`; all when empty).
+pub(crate) fn run_case(case: &Case, cfg: &Config) -> Result<Case> {
+    if cfg.run.views.is_empty() { Ok(case.clone()) } else { case.select_views(&cfg.run.views) }
 }
 
 /// The maps the seed checks read: [`run_arrival_maps`], and with `init.arrival_prior_unknown`
@@ -33,10 +38,11 @@ pub fn run_arrival_maps(case: &Case, cfg: &Config) -> Result<Option<Vec<Image>>>
 /// [`HIDDEN_BY_PRIOR`].
 pub fn seed_arrival_maps(case: &Case, cfg: &Config) -> Result<Option<Vec<Image>>> {
     let Some(mut maps) = run_arrival_maps(case, cfg)? else { return Ok(None) };
-    let case = if cfg.run.views.is_empty() { case.clone() } else { case.select_views(&cfg.run.views)? };
-    if cfg.init.arrival_prior_unknown
-        && let Some(prior) = case.prior_mesh()?
-    {
+    if !cfg.init.arrival_prior_unknown {
+        return Ok(Some(maps));
+    }
+    let case = run_case(case, cfg)?;
+    if let Some(prior) = case.prior_mesh()? {
         let b = cfg.run.image_binning.max(1);
         let views: Vec<ConeBeamView> =
             case.views.views().iter().map(|v| v.binned(b)).collect::<std::result::Result<_, _>>()?;

@@ -119,7 +119,7 @@ mod tests {
         TreeNode { id, kind: 0, position_mm: DVec3::from(p), radius_mm, parent }
     }
 
-    /// A 64² view with 1 mm detector pixels, looking along the world's x axis.
+    /// The reference geometry at −90° shrunk to 64² detector pixels of 1 mm.
     fn small_view() -> ConeBeamView {
         let mut g = TigreGeometry::reference(-90.0);
         g.detector_px = [64, 64];

@@ -13,7 +13,7 @@ use crate::method::working_box::working_box_from_inputs;
 
 /// The case's images and views after the run's view selection and binning.
 pub fn prepare_views(case: &Case, cfg: &Config) -> Result<(ViewSet, Vec<Image>)> {
-    let case = if cfg.run.views.is_empty() { case.clone() } else { case.select_views(&cfg.run.views)? };
+    let case = crate::method::arrival::run_case(case, cfg)?;
     let b = cfg.run.image_binning.max(1);
     let (w, h) = case.views.image_size();
     if b > w.min(h) {
