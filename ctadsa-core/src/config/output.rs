@@ -118,6 +118,12 @@ pub struct OutputConfig {
     pub arrival_min_agreement: f64,
     /// Frames by which the two views' arrivals may differ and still agree.
     pub arrival_tolerance_frames: f64,
+    /// With `arrival_min_agreement`: the branches are checked on maps that hide the prior's
+    /// projection, a view the prior hides at a point judged by the frames filled within this
+    /// many pixels of it, outside the projection ([`crate::method::arrival::frames_seen`]; 0:
+    /// that view cannot tell). Absent: on the maps as they are, where the prior shows its own
+    /// frame.
+    pub arrival_prior_exit_px: Option<u32>,
 }
 
 impl OutputConfig {
@@ -182,6 +188,7 @@ impl Default for OutputConfig {
             min_confidence: 0.0,
             arrival_min_agreement: 0.5,
             arrival_tolerance_frames: 0.0,
+            arrival_prior_exit_px: None,
         }
     }
 }

@@ -8,6 +8,12 @@ fn unknown_keys_and_bad_values_name_the_key() {
     assert!(err.contains("loss.lambda_dssim"), "{err}");
     let err = Config::load(None, &["init.n2_mode=\"sideways\"".into()]).unwrap_err().to_string();
     assert!(err.contains("sideways") || err.contains("n2_mode"), "{err}");
+    // The arrival checks' windows are bounded (a huge one would scan the whole image per point).
+    for key in ["init.arrival_prior_exit_px", "output.arrival_prior_exit_px"] {
+        let err = Config::load(None, &[format!("{key}=100000")]).unwrap_err().to_string();
+        assert!(err.contains(key), "{err}");
+        assert!(Config::load(None, &[format!("{key}=6")]).is_ok());
+    }
     let ok = Config::load(None, &["run.iterations=7".into(), "init.n2_mode=uniform".into()]).unwrap();
     assert_eq!(ok.run.iterations, 7);
     assert_eq!(ok.init.n2_mode, SeedMode::Uniform);

@@ -228,6 +228,12 @@ impl Config {
             "init.arrival_tolerance_frames",
             "must be in [0, 1000]",
         )?;
+        check(self.init.arrival_prior_exit_px <= 64, "init.arrival_prior_exit_px", "must be at most 64 (pixels)")?;
+        check(
+            self.output.arrival_prior_exit_px.is_none_or(|r| r <= 64),
+            "output.arrival_prior_exit_px",
+            "must be at most 64 (pixels)",
+        )?;
         check(
             (0.0..=1000.0).contains(&self.output.arrival_tolerance_frames),
             "output.arrival_tolerance_frames",

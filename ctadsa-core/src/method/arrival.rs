@@ -34,13 +34,15 @@ pub(crate) fn run_case(case: &Case, cfg: &Config) -> Result<Case> {
 }
 
 /// The maps the seed checks read: [`run_arrival_maps`], and with `init.arrival_prior_unknown`
-/// and a prior mesh the pixels of the prior's projection (voxelised at the case's voxel) set to
-/// [`HIDDEN_BY_PRIOR`].
+/// the prior's projection hidden ([`prior_hidden_maps`]).
 pub fn seed_arrival_maps(case: &Case, cfg: &Config) -> Result<Option<Vec<Image>>> {
+    if cfg.init.arrival_prior_unknown { prior_hidden_maps(case, cfg) } else { run_arrival_maps(case, cfg) }
+}
+
+/// [`run_arrival_maps`] with the pixels of the prior's projection (the prior mesh voxelised at
+/// the case's voxel) set to [`HIDDEN_BY_PRIOR`]; as they are when the case has no prior mesh.
+pub fn prior_hidden_maps(case: &Case, cfg: &Config) -> Result<Option<Vec<Image>>> {
     let Some(mut maps) = run_arrival_maps(case, cfg)? else { return Ok(None) };
-    if !cfg.init.arrival_prior_unknown {
-        return Ok(Some(maps));
-    }
     let case = run_case(case, cfg)?;
     if let Some(prior) = case.prior_mesh()? {
         let b = cfg.run.image_binning.max(1);
@@ -76,25 +78,58 @@ pub fn frames_around(view: &ConeBeamView, map: &Image, p: DVec3) -> [f32; 9] {
     out
 }
 
+/// Whether a point's pixels in a view (the 3 × 3 of [`frames_around`]) lie wholly in the prior's
+/// projection: all [`HIDDEN_BY_PRIOR`] or unfilled, at least one hidden.
+fn hidden(frames: &[f32]) -> bool {
+    !frames.iter().any(|&f| f >= 0.0) && frames.contains(&HIDDEN_BY_PRIOR)
+}
+
 /// Whether some filled pixel of `first` and some of `second` filled within `tolerance_frames`
 /// of each other; a side whose pixels are all [`HIDDEN_BY_PRIOR`] or unfilled, at least one
 /// hidden, cannot tell, and agrees with any side that has a filled or hidden pixel.
-pub fn frames_agree(first: &[f32; 9], second: &[f32; 9], tolerance_frames: f32) -> bool {
+pub fn frames_agree(first: &[f32], second: &[f32], tolerance_frames: f32) -> bool {
     let filled = |f: &&f32| **f >= 0.0;
-    let hidden = |s: &[f32; 9]| !s.iter().any(|f| filled(&f)) && s.contains(&HIDDEN_BY_PRIOR);
-    let seen = |s: &[f32; 9]| s.iter().any(|&f| f >= 0.0 || f == HIDDEN_BY_PRIOR);
+    let seen = |s: &[f32]| s.iter().any(|&f| f >= 0.0 || f == HIDDEN_BY_PRIOR);
     if (hidden(first) && seen(second)) || (hidden(second) && seen(first)) {
         return true;
     }
     first.iter().filter(filled).any(|f| second.iter().filter(filled).any(|g| (f - g).abs() <= tolerance_frames))
 }
 
+/// The frames `view` shows for the point `p`: the 3 × 3 of [`frames_around`], or, where those
+/// lie wholly in the prior's projection and `exit_px` > 0, the filled pixels within `exit_px`
+/// pixels (a square) of the projection, outside the prior's: where a vessel behind the prior
+/// leaves its projection, it shows its own frame (none filled there: the 3 × 3, which cannot tell).
+pub fn frames_seen(view: &ConeBeamView, map: &Image, p: DVec3, exit_px: u32) -> Vec<f32> {
+    let near = frames_around(view, map, p);
+    if exit_px == 0 || !hidden(&near) {
+        return near.to_vec();
+    }
+    let Some(uv) = view.project(p) else { return near.to_vec() };
+    let (u, v, r) = (uv.x.round() as i64, uv.y.round() as i64, exit_px as i64);
+    let (w, h) = (map.width as i64, map.height as i64);
+    let mut out = Vec::new();
+    for row in (v - r).max(0)..(v + r + 1).min(h) {
+        for col in (u - r).max(0)..(u + r + 1).min(w) {
+            let f = map.data[(row * w + col) as usize];
+            if f >= 0.0 {
+                out.push(f);
+            }
+        }
+    }
+    if out.is_empty() { near.to_vec() } else { out }
+}
+
 /// Whether the point `p` fills at one time in both of two views (`maps[v]` the arrival map of
 /// `views[v]`, the first two of each): some pixel of the 3 × 3 around each projection filled
-/// within `tolerance_frames` of some around the other. A vessel behind an earlier-filled one in
-/// a view (the prior's, say) shows that one's frame there and fails.
-pub fn arrives_together(views: &[ConeBeamView], maps: &[Image], p: DVec3, tolerance_frames: f32) -> bool {
-    frames_agree(&frames_around(&views[0], &maps[0], p), &frames_around(&views[1], &maps[1], p), tolerance_frames)
+/// within `tolerance_frames` of some around the other ([`frames_seen`] with `exit_px`). A vessel
+/// behind an earlier-filled one in a view (the prior's, say) shows that one's frame there and fails.
+pub fn arrives_together(views: &[ConeBeamView], maps: &[Image], p: DVec3, tolerance_frames: f32, exit_px: u32) -> bool {
+    frames_agree(
+        &frames_seen(&views[0], &maps[0], p, exit_px),
+        &frames_seen(&views[1], &maps[1], p, exit_px),
+        tolerance_frames,
+    )
 }
 
 #[cfg(test)]
@@ -121,5 +156,36 @@ mod tests {
         assert!(!frames_agree(&hidden, &[NO_ARRIVAL; 9], 0.0));
         assert!(!frames_agree(&around(&[HIDDEN_BY_PRIOR, 5.0]), &three, 0.0));
         assert!(frames_agree(&around(&[HIDDEN_BY_PRIOR, 3.0]), &three, 0.0));
+    }
+
+    /// A point deep in the prior's projection: with `exit_px` it is judged by the frame filled
+    /// where the vessel leaves the projection (4 px away); a window that ends inside the
+    /// projection cannot tell.
+    #[test]
+    fn a_hidden_side_shows_the_frame_where_the_vessel_leaves_the_prior() {
+        use ctadsa_render::TigreGeometry;
+        let mut g = TigreGeometry::reference(0.0);
+        g.detector_px = [64, 64];
+        g.pixel_mm = [1.0, 1.0];
+        let view = ConeBeamView::from_tigre(&g).unwrap();
+        let p = DVec3::ZERO;
+        let uv = view.project(p).unwrap();
+        let (u, v) = (uv.x.round() as usize, uv.y.round() as usize);
+        let mut map = Image { width: 64, height: 64, data: vec![NO_ARRIVAL; 64 * 64] };
+        for r in v - 3..=v + 3 {
+            for c in u - 3..=u + 3 {
+                map.data[r * 64 + c] = HIDDEN_BY_PRIOR;
+            }
+        }
+        map.data[v * 64 + u + 4] = 3.0;
+        map.data[v * 64 + u + 10] = 5.0;
+        let (three, five) = (around(&[3.0]), around(&[5.0]));
+        let inside = frames_seen(&view, &map, p, 0);
+        assert!(hidden(&inside) && frames_agree(&inside, &five, 0.0));
+        assert_eq!(frames_seen(&view, &map, p, 2), inside, "the window ends inside the projection");
+        let exit = frames_seen(&view, &map, p, 5);
+        assert_eq!(exit, vec![3.0]);
+        assert!(frames_agree(&exit, &three, 0.0) && !frames_agree(&exit, &five, 0.0));
+        assert_eq!(frames_seen(&view, &map, p, 10), vec![3.0, 5.0]);
     }
 }

@@ -249,7 +249,8 @@ pub(crate) fn arriving(
     candidates: impl IntoParallelIterator<Item = Scored>,
 ) -> Vec<Scored> {
     let tolerance = cfg.arrival_tolerance_frames as f32;
-    candidates.into_par_iter().filter(|(_, c, _)| arrives_together(views, maps, *c, tolerance)).collect()
+    let exit = if cfg.arrival_prior_unknown { cfg.arrival_prior_exit_px } else { 0 };
+    candidates.into_par_iter().filter(|(_, c, _)| arrives_together(views, maps, *c, tolerance, exit)).collect()
 }
 
 /// The two views' arrival maps, where a run of two views has them and checks seeds with them

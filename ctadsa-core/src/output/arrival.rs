@@ -6,21 +6,23 @@ use ctadsa_render::ConeBeamView;
 use super::confidence::Branch;
 use crate::data::case::images::Image;
 use crate::data::tree::VesselTree;
-use crate::method::arrival::{frames_agree, frames_around};
+use crate::method::arrival::{frames_agree, frames_seen};
 
 /// Step (mm) between the points of a branch that are checked.
 const SAMPLE_MM: f64 = 0.1;
 
 /// For each new branch of `tree` in a run of two views: the share (0–1) of its length whose
 /// projections into the two views lie on pixels (3 × 3 around each) filled in frames within
-/// `tolerance_frames` of each other. `None` for prior branches, and for every branch unless there
-/// are exactly two views (with three, the third view already rejects the ghosts).
+/// `tolerance_frames` of each other ([`frames_seen`] with `exit_px`, where `maps` hide the
+/// prior's projection). `None` for prior branches, and for every branch unless there are exactly
+/// two views (with three, the third view already rejects the ghosts).
 pub fn arrival_agreement(
     tree: &VesselTree,
     branches: &[Branch],
     views: &[ConeBeamView],
     maps: &[Image],
     tolerance_frames: f32,
+    exit_px: u32,
 ) -> Vec<Option<f64>> {
     branches
         .iter()
@@ -36,7 +38,7 @@ pub fn arrival_agreement(
                 for k in 0..n {
                     let p = a.lerp(z, (k as f64 + 0.5) / n as f64);
                     let (first, second) =
-                        (frames_around(&views[0], &maps[0], p), frames_around(&views[1], &maps[1], p));
+                        (frames_seen(&views[0], &maps[0], p, exit_px), frames_seen(&views[1], &maps[1], p, exit_px));
                     let same = frames_agree(&first, &second, tolerance_frames);
                     total += length / n as f64;
                     if same {
@@ -107,12 +109,12 @@ mod tests {
             ],
         };
         let branches = [new_branch(vec![0, 1]), new_branch(vec![2, 3])];
-        let agreement = arrival_agreement(&found, &branches, &views, &maps, 0.0);
+        let agreement = arrival_agreement(&found, &branches, &views, &maps, 0.0, 0);
         assert_eq!(agreement[0], Some(1.0), "the true vessel");
         assert_eq!(agreement[1], Some(0.0), "the ghost");
         // Three views: not checked.
         let three = [views[0], views[1], views[0]];
-        assert!(arrival_agreement(&found, &branches, &three, &maps, 0.0).iter().all(Option::is_none));
+        assert!(arrival_agreement(&found, &branches, &three, &maps, 0.0, 0).iter().all(Option::is_none));
         // Binning keeps the earliest frame of each block.
         let map = Image { width: 2, height: 2, data: vec![NO_ARRIVAL, 3.0, 2.0, NO_ARRIVAL] };
         assert_eq!(bin_arrival(&map, 2).data, vec![2.0]);

@@ -58,6 +58,9 @@ pub struct ArrivalCheck<'a> {
     pub maps: &'a [Image],
     pub tolerance_frames: f64,
     pub min_agreement: f64,
+    /// Where `maps` hide the prior's projection, the window (pixels) of
+    /// [`crate::method::arrival::frames_seen`].
+    pub exit_px: u32,
 }
 
 /// One part of the completed solid: its voxels and its surface.
@@ -164,7 +167,7 @@ pub fn write_centreline(
     let branches = branch_confidence(all, views);
     let all_confidence = node_confidence(all, &branches);
     let agreement = match &arrival {
-        Some(a) => arrival_agreement(all, &branches, views, a.maps, a.tolerance_frames as f32),
+        Some(a) => arrival_agreement(all, &branches, views, a.maps, a.tolerance_frames as f32, a.exit_px),
         None => vec![None; branches.len()],
     };
     write_branches_csv(&dir.join("branches.csv"), &branches, views.len(), &agreement)?;

@@ -26,7 +26,7 @@ use crate::eval::metrics::RegionScores;
 use crate::eval::score::{CaseTruth, EvalOptions};
 use crate::eval::surface_metrics::Coverage;
 use crate::eval::topology::{TopologyScores, topology_scores};
-use crate::method::arrival::run_arrival_maps;
+use crate::method::arrival::{prior_hidden_maps, run_arrival_maps};
 use crate::method::field_health::DensitySpread;
 use crate::method::train::{StepLog, Trainer};
 use crate::method::training_time::TrainingTime;
@@ -292,7 +292,10 @@ pub fn write_outputs(
     let surface = extract_completed_surface(dir, trainer, &volume, prior.as_ref())?;
     let truth = CaseTruth::load(case)?;
     let traced = traced_solid(trainer, seed_members, member, &volume, &surface, prior.as_ref())?;
-    let arrival_maps = run_arrival_maps(case, cfg)?;
+    let arrival_maps = match cfg.output.arrival_prior_exit_px {
+        Some(_) => prior_hidden_maps(case, cfg)?,
+        None => run_arrival_maps(case, cfg)?,
+    };
     let (centreline, topology, vertex_confidence) = write_centreline_of(
         dir,
         &volume,
@@ -586,6 +589,7 @@ fn write_centreline_of(
         maps,
         tolerance_frames: out.arrival_tolerance_frames,
         min_agreement: out.arrival_min_agreement,
+        exit_px: out.arrival_prior_exit_px.unwrap_or(0),
     });
     let params = SkeletonParams {
         scale: out.centreline_scale,
