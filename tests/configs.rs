@@ -140,6 +140,10 @@ fn shipped_configs_load_and_matrices_point_at_them() {
     assert!(fine.init.arrival_seeds && fine.init.arrival_track_starts && fine.init.arrival_reseeds);
     assert!(!quick.init.arrival_seeds && !quick.init.arrival_track_starts && !quick.init.arrival_reseeds);
     (fine.init.arrival_seeds, fine.init.arrival_track_starts, fine.init.arrival_reseeds) = (false, false, false);
+    // A view the prior hides at a point is judged where a vessel behind the prior leaves it.
+    assert!(fine.init.arrival_prior_unknown && fine.init.arrival_prior_exit_px > 0);
+    assert!(!quick.init.arrival_prior_unknown && quick.init.arrival_prior_exit_px == 0);
+    (fine.init.arrival_prior_unknown, fine.init.arrival_prior_exit_px) = (false, 0);
     // And the prior-only member re-seeds too, where the maps check its re-seeds.
     assert!(fine.run.member_reseeds && !quick.run.member_reseeds);
     assert!(fine.prior_only_member().unwrap().densify.reseed_arrival_only);
