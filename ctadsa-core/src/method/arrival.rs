@@ -63,12 +63,20 @@ pub fn prior_hidden_maps(case: &Case, cfg: &Config) -> Result<Option<Vec<Image>>
     Ok(Some(maps))
 }
 
+/// The pixel (column, row) `view` projects `p` into; it may lie off the detector.
+fn pixel_of(view: &ConeBeamView, p: DVec3) -> Option<(i64, i64)> {
+    view.project(p).map(|uv| (uv.x.round() as i64, uv.y.round() as i64))
+}
+
 /// The frames of the 3 × 3 pixels around `view`'s projection of `p` (a pixel no vessel fills,
 /// or off the detector, is [`NO_ARRIVAL`]).
 pub fn frames_around(view: &ConeBeamView, map: &Image, p: DVec3) -> [f32; 9] {
+    pixel_of(view, p).map_or([NO_ARRIVAL; 9], |px| frames_at(map, px))
+}
+
+/// The frames of the 3 × 3 pixels around the pixel `(u, v)` of `map`.
+fn frames_at(map: &Image, (u, v): (i64, i64)) -> [f32; 9] {
     let mut out = [NO_ARRIVAL; 9];
-    let Some(uv) = view.project(p) else { return out };
-    let (u, v) = (uv.x.round() as i64, uv.y.round() as i64);
     for (k, slot) in out.iter_mut().enumerate() {
         let (c, r) = (u + k as i64 % 3 - 1, v + k as i64 / 3 - 1);
         if c >= 0 && r >= 0 && c < map.width as i64 && r < map.height as i64 {
@@ -96,18 +104,38 @@ pub fn frames_agree(first: &[f32], second: &[f32], tolerance_frames: f32) -> boo
     first.iter().filter(filled).any(|f| second.iter().filter(filled).any(|g| (f - g).abs() <= tolerance_frames))
 }
 
+/// The frames a view shows for a point ([`frames_seen`]).
+#[derive(Debug, Clone, PartialEq)]
+pub enum Seen {
+    /// The 3 × 3 pixels around its projection ([`frames_around`]).
+    Around([f32; 9]),
+    /// Where those lie wholly in the prior's projection, the frames filled in the window around
+    /// it, outside the prior's projection.
+    Exit(Vec<f32>),
+}
+
+impl std::ops::Deref for Seen {
+    type Target = [f32];
+    fn deref(&self) -> &[f32] {
+        match self {
+            Seen::Around(frames) => frames,
+            Seen::Exit(frames) => frames,
+        }
+    }
+}
+
 /// The frames `view` shows for the point `p`: the 3 × 3 of [`frames_around`], or, where those
 /// lie wholly in the prior's projection and `exit_px` > 0, the filled pixels within `exit_px`
 /// pixels (a square) of the projection, outside the prior's: where a vessel behind the prior
 /// leaves its projection, it shows its own frame (none filled there: the 3 × 3, which cannot tell).
-pub fn frames_seen(view: &ConeBeamView, map: &Image, p: DVec3, exit_px: u32) -> Vec<f32> {
-    let near = frames_around(view, map, p);
+/// Allocates only for the window.
+pub fn frames_seen(view: &ConeBeamView, map: &Image, p: DVec3, exit_px: u32) -> Seen {
+    let Some((u, v)) = pixel_of(view, p) else { return Seen::Around([NO_ARRIVAL; 9]) };
+    let near = frames_at(map, (u, v));
     if exit_px == 0 || !hidden(&near) {
-        return near.to_vec();
+        return Seen::Around(near);
     }
-    let Some(uv) = view.project(p) else { return near.to_vec() };
-    let (u, v, r) = (uv.x.round() as i64, uv.y.round() as i64, exit_px as i64);
-    let (w, h) = (map.width as i64, map.height as i64);
+    let (r, w, h) = (exit_px as i64, map.width as i64, map.height as i64);
     let mut out = Vec::new();
     for row in (v - r).max(0)..(v + r + 1).min(h) {
         for col in (u - r).max(0)..(u + r + 1).min(w) {
@@ -117,7 +145,7 @@ pub fn frames_seen(view: &ConeBeamView, map: &Image, p: DVec3, exit_px: u32) -> 
             }
         }
     }
-    if out.is_empty() { near.to_vec() } else { out }
+    if out.is_empty() { Seen::Around(near) } else { Seen::Exit(out) }
 }
 
 /// Whether the point `p` fills at one time in both of two views (`maps[v]` the arrival map of
@@ -184,8 +212,8 @@ mod tests {
         assert!(hidden(&inside) && frames_agree(&inside, &five, 0.0));
         assert_eq!(frames_seen(&view, &map, p, 2), inside, "the window ends inside the projection");
         let exit = frames_seen(&view, &map, p, 5);
-        assert_eq!(exit, vec![3.0]);
+        assert_eq!(exit, Seen::Exit(vec![3.0]));
         assert!(frames_agree(&exit, &three, 0.0) && !frames_agree(&exit, &five, 0.0));
-        assert_eq!(frames_seen(&view, &map, p, 10), vec![3.0, 5.0]);
+        assert_eq!(frames_seen(&view, &map, p, 10), Seen::Exit(vec![3.0, 5.0]));
     }
 }

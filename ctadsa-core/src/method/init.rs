@@ -249,7 +249,8 @@ pub(crate) fn arriving(
     candidates: impl IntoParallelIterator<Item = Scored>,
 ) -> Vec<Scored> {
     let tolerance = cfg.arrival_tolerance_frames as f32;
-    let exit = if cfg.arrival_prior_unknown { cfg.arrival_prior_exit_px } else { 0 };
+    // Maps without the prior hidden (`arrival_prior_unknown` off) never open the window.
+    let exit = cfg.arrival_prior_exit_px;
     candidates.into_par_iter().filter(|(_, c, _)| arrives_together(views, maps, *c, tolerance, exit)).collect()
 }
 
