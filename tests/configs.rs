@@ -144,6 +144,9 @@ fn shipped_configs_load_and_matrices_point_at_them() {
     assert!(fine.init.arrival_prior_unknown && fine.init.arrival_prior_exit_px > 0);
     assert!(!quick.init.arrival_prior_unknown && quick.init.arrival_prior_exit_px == 0);
     (fine.init.arrival_prior_unknown, fine.init.arrival_prior_exit_px) = (false, 0);
+    // A track's claim whose point fills at two times gives way to one that fills at once.
+    assert!(fine.init.arrival_track_claims && !quick.init.arrival_track_claims);
+    fine.init.arrival_track_claims = false;
     // And the prior-only member re-seeds too, where the maps check its re-seeds.
     assert!(fine.run.member_reseeds && !quick.run.member_reseeds);
     assert!(fine.prior_only_member().unwrap().densify.reseed_arrival_only);

@@ -42,7 +42,7 @@ use crate::error::{CoreError, Result};
 use crate::method::arrival::arrives_together;
 use crate::method::model::{GaussianInit, ScaleBounds};
 use crate::method::seed_growth::grow_from;
-use crate::method::tracking::{Residuals, TrackSettings, track_from_prior};
+use crate::method::tracking::{FillsAtOnce, Residuals, TrackSettings, track_from_prior};
 
 /// Pixel of a world point in a view (nearest pixel centre), if on the detector.
 #[inline]
@@ -203,14 +203,18 @@ pub fn n2_seeds(
                 max_points: cfg.track_max_points,
                 rounds: cfg.track_rounds,
             };
-            // With `init.arrival_track_starts`, tracks start only where both views fill at once.
-            let starts: Cow<'_, [Scored]> = match arrival_pair(cfg, views, arrival) {
+            // With `init.arrival_track_starts`, tracks start only where both views fill at once;
+            // with `init.arrival_track_claims`, a claim whose point fills at two times gives way
+            // to a point that fills at once.
+            let maps = arrival_pair(cfg, views, arrival);
+            let starts: Cow<'_, [Scored]> = match maps {
                 Some(maps) if cfg.arrival_track_starts => {
                     Cow::Owned(arriving(cfg, views, maps, read.scored.par_iter().copied()))
                 }
                 _ => Cow::Borrowed(&read.scored),
             };
-            track_from_prior(&res, &starts, s, settings)
+            let together = maps.filter(|_| cfg.arrival_track_claims).map(|maps| fills_at_once(cfg, views, maps));
+            track_from_prior(&res, &starts, s, settings, together.as_ref().map(|f| f as FillsAtOnce))
         }
         _ => Vec::new(),
     };
@@ -248,10 +252,22 @@ pub(crate) fn arriving(
     maps: &[Image],
     candidates: impl IntoParallelIterator<Item = Scored>,
 ) -> Vec<Scored> {
+    let together = fills_at_once(cfg, views, maps);
+    candidates.into_par_iter().filter(|(_, c, _)| together(*c)).collect()
+}
+
+/// Whether a point fills at once in both `views` ([`arrives_together`] with the two views'
+/// arrival `maps`, within `init.arrival_tolerance_frames`, the prior's exit window
+/// `init.arrival_prior_exit_px`).
+fn fills_at_once<'a>(
+    cfg: &InitConfig,
+    views: &'a [ConeBeamView],
+    maps: &'a [Image],
+) -> impl Fn(DVec3) -> bool + Sync + 'a {
     let tolerance = cfg.arrival_tolerance_frames as f32;
     // Maps without the prior hidden (`arrival_prior_unknown` off) never open the window.
     let exit = cfg.arrival_prior_exit_px;
-    candidates.into_par_iter().filter(|(_, c, _)| arrives_together(views, maps, *c, tolerance, exit)).collect()
+    move |p| arrives_together(views, maps, p, tolerance, exit)
 }
 
 /// The two views' arrival maps, where a run of two views has them and checks seeds with them

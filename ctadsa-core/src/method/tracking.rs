@@ -8,7 +8,9 @@
 //! less a cost for a turn either view sees and for a change of either view's brightness (where
 //! a track would slip onto a ghost, one view's projection turns onto another vessel). A pixel
 //! shows one vessel at one depth, so each track claims its pixels, and a track that runs on
-//! pixels another claimed at another depth for longer than a crossing stops there.
+//! pixels another claimed at another depth for longer than a crossing stops there. With the
+//! views' arrival maps a claim whose point fills at two times (a ghost's) gives way to a point
+//! that fills at once.
 //!
 //! The branches of a new vessel never touch the prior, so tracking may go in rounds: each round
 //! after the first starts tracks beside the tracks of the round before, heading away from them.
@@ -227,14 +229,19 @@ pub(crate) struct TrackSettings {
     pub rounds: usize,
 }
 
+/// Whether both views fill at once at a point (their arrival maps, `crate::method::arrival`).
+pub(crate) type FillsAtOnce<'a> = &'a (dyn Fn(DVec3) -> bool + 'a);
+
 /// Points (mm, every [`STEP_MM`]) of the vessels tracked away from the `prior` solid, started
 /// at the `candidates` near it, and in later rounds (`settings.rounds`) at those near the
-/// tracks of the round before.
+/// tracks of the round before. With `fills_at_once`, a claim whose point fills at two times (a
+/// ghost's, likely) gives way to a point that fills at once: that point is not on claimed pixels.
 pub(crate) fn track_from_prior(
     res: &Residuals,
     candidates: &[Scored],
     prior: &Volume<u8>,
     settings: TrackSettings,
+    fills_at_once: Option<FillsAtOnce>,
 ) -> Vec<DVec3> {
     let dist2 = squared_edt(&prior.map(|v| u8::from(v == 0)));
     let prior_dist = |p: DVec3| prior.grid.index_at(p).map_or(f64::INFINITY, |i| dist2[i].sqrt());
@@ -244,6 +251,7 @@ pub(crate) fn track_from_prior(
         grid: prior.grid,
         dirs: sphere_directions(DIRECTIONS),
         cos_cone: CONE_DEG.to_radians().cos(),
+        fills_at_once,
     };
     let mut tracks = Tracks::default();
     let mut starts = tracker.starts(candidates, |p| {
@@ -274,13 +282,24 @@ pub(crate) fn track_from_prior(
     tracks.points
 }
 
-/// What every track reads: the views, the settings, the prior's grid and the directions tried.
+/// What every track reads: the views, the settings, the prior's grid, the directions tried and
+/// the views' arrival check, if any.
 struct Tracker<'a> {
     res: &'a Residuals<'a>,
     settings: TrackSettings,
     grid: Grid,
     dirs: Vec<DVec3>,
     cos_cone: f64,
+    fills_at_once: Option<FillsAtOnce<'a>>,
+}
+
+/// A track point's claim on a pixel (a pixel shows one vessel at one depth).
+#[derive(Clone, Copy)]
+struct Claim {
+    point: DVec3,
+    track: usize,
+    /// Whether both views fill at once at the point (without an arrival check: true).
+    fills_at_once: bool,
 }
 
 /// The tracks so far: their points, a spatial index of them and their pixels' claims.
@@ -288,8 +307,8 @@ struct Tracker<'a> {
 struct Tracks {
     points: Vec<DVec3>,
     index: PointIndex,
-    /// (view, pixel) → (the point, its track) that claimed it.
-    claims: HashMap<(usize, usize), (DVec3, usize)>,
+    /// (view, pixel) → the claim on it.
+    claims: HashMap<(usize, usize), Claim>,
     count: usize,
 }
 
@@ -368,9 +387,15 @@ impl Tracker<'_> {
                     break;
                 }
                 let rays = || res.views.iter().enumerate().filter_map(|(vi, v)| pixel_of(v, p).map(|px| (vi, px)));
+                // A claim at another depth holds, unless its point fills at two times and this one at once.
+                let takes = || self.fills_at_once.is_some_and(|fills| fills(p));
                 let claimed_elsewhere = claimed_run_mm > 0.0
                     && rays().any(|r| {
-                        tracks.claims.get(&r).is_some_and(|&(q, t)| t != track && q.distance(p) > CLAIM_TOLERANCE_MM)
+                        tracks.claims.get(&r).is_some_and(|c| {
+                            c.track != track
+                                && c.point.distance(p) > CLAIM_TOLERANCE_MM
+                                && (c.fills_at_once || !takes())
+                        })
                     });
                 if claimed_elsewhere {
                     on_claimed.push(p);
@@ -380,9 +405,11 @@ impl Tracker<'_> {
                     continue;
                 }
                 for q in on_claimed.drain(..).chain(std::iter::once(p)) {
+                    let claim =
+                        Claim { point: q, track, fills_at_once: self.fills_at_once.is_none_or(|fills| fills(q)) };
                     for (vi, v) in res.views.iter().enumerate() {
                         if let Some(px) = pixel_of(v, q) {
-                            tracks.claims.entry((vi, px)).or_insert((q, track));
+                            tracks.claims.entry((vi, px)).or_insert(claim);
                         }
                     }
                     tracks.index.insert(q, track);
@@ -421,6 +448,15 @@ mod tests {
 
     /// [`tracks`] in `rounds` rounds.
     fn tracks_in_rounds(missing: &[([f64; 3], [f64; 3])], rounds: usize) -> Vec<DVec3> {
+        tracks_checked(missing, rounds, None)
+    }
+
+    /// [`tracks_in_rounds`] with the arrival check `fills_at_once`.
+    fn tracks_checked(
+        missing: &[([f64; 3], [f64; 3])],
+        rounds: usize,
+        fills_at_once: Option<FillsAtOnce>,
+    ) -> Vec<DVec3> {
         let (_, views, _, bounds) = scene();
         let views = &views[..2];
         let (prior, _) = prior_and_images(PRIOR, &[], views, &bounds);
@@ -444,7 +480,7 @@ mod tests {
             max_points: 10_000,
             rounds,
         };
-        track_from_prior(&res, &candidates, &solid, settings)
+        track_from_prior(&res, &candidates, &solid, settings, fills_at_once)
     }
 
     /// Points farther than 1 mm from the vessel's axis, where it has left the prior (beyond
@@ -506,6 +542,31 @@ mod tests {
         assert!(branch_two > 0.5, "two rounds follow it: {branch_two:.2}");
         assert!(covered(&two) >= covered(&one), "and keep the vessel");
         assert!(off(&two) * 4 <= two.len(), "at most a quarter off both: {} of {}", off(&two), two.len());
+    }
+
+    /// `init.arrival_track_claims`: the vessel and its mirror image across the plane y = 0 leave
+    /// the prior together and project onto the same pixels in view 0 (looking along y), at
+    /// other depths: the one tracked second stops on the first one's claims. Where the first
+    /// one's points fill at two times and the second's at once, the claims give way and the
+    /// second is tracked on; where both fill at once they hold, as without the check.
+    #[test]
+    fn a_claim_whose_point_fills_at_two_times_gives_way() {
+        const MIRROR: ([f64; 3], [f64; 3]) = ([2.0, 0.0, 0.5], [6.0, -4.0, 11.0]);
+        let missing = [VESSEL, MIRROR];
+        let unchecked = tracks_checked(&missing, 1, None);
+        let (vessel, mirror) = (covered_of(&unchecked, VESSEL), covered_of(&unchecked, MIRROR));
+        let (first, second) = if vessel >= mirror { (VESSEL, MIRROR) } else { (MIRROR, VESSEL) };
+        let on_second = |p: DVec3| to_segment(p, second.0, second.1) < 1.0;
+        let freed = tracks_checked(&missing, 1, Some(&on_second));
+        let everywhere = |_: DVec3| true;
+        let held = tracks_checked(&missing, 1, Some(&everywhere));
+        let (before, after) = (covered_of(&unchecked, second), covered_of(&freed, second));
+        eprintln!("covered: first {:.2}, second {before:.2}, freed {after:.2}", covered_of(&unchecked, first));
+        assert!(covered_of(&unchecked, first) > 0.8, "the first is tracked");
+        assert!(before < 0.5, "the second stops on the first one's claims: {before:.2}");
+        assert!(after > before + 0.3, "and goes on where they give way: {before:.2} -> {after:.2}");
+        assert!(covered_of(&freed, first) > 0.8, "the first keeps its track");
+        assert_eq!(held, unchecked, "claims whose points fill at once hold");
     }
 
     #[test]

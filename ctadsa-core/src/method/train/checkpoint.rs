@@ -139,8 +139,8 @@ fn flat_settings(text: &str) -> std::collections::BTreeMap<String, String> {
 }
 
 /// The training settings (`section.key`) in which a checkpoint's `saved` settings and the
-/// `current` ones differ. `[output]` never counts, nor the tracker's settings (`init.track_*`)
-/// of a model that tracks on neither side; a key that only one side has (a setting added or
+/// `current` ones differ. `[output]` never counts, nor the tracker's settings (`init.track_*`,
+/// `init.arrival_track_*`) of a model that tracks on neither side; a key that only one side has (a setting added or
 /// removed between versions) counts only when its value is not the default.
 fn settings_differences(saved: &str, current: &str) -> Vec<String> {
     let (a, b) = (flat_settings(saved), flat_settings(current));
@@ -151,7 +151,7 @@ fn settings_differences(saved: &str, current: &str) -> Vec<String> {
     let keys: std::collections::BTreeSet<&String> = a.keys().chain(b.keys()).collect();
     keys.into_iter()
         .filter(|k| !k.starts_with("output."))
-        .filter(|k| !(untracked && k.starts_with("init.track_")))
+        .filter(|k| !(untracked && (k.starts_with("init.track_") || k.starts_with("init.arrival_track_"))))
         .filter(|k| value(&a, k) != value(&b, k))
         .cloned()
         .collect()
@@ -443,13 +443,14 @@ mod tests {
         assert_eq!(base.init.track_max_views, 0, "the default model does not track");
         let mut rounds = base.clone();
         rounds.init.track_rounds = 2;
+        rounds.init.arrival_track_claims = true;
         let saved = training_settings(&base);
         assert!(settings_differences(&saved, &training_settings(&rounds)).is_empty());
         let (mut tracked, mut tracked_rounds) = (base.clone(), rounds.clone());
         tracked.init.track_max_views = 2;
         tracked_rounds.init.track_max_views = 2;
         let differ = settings_differences(&training_settings(&tracked), &training_settings(&tracked_rounds));
-        assert_eq!(differ, vec!["init.track_rounds"]);
+        assert_eq!(differ, vec!["init.arrival_track_claims", "init.track_rounds"]);
         assert_eq!(settings_differences(&saved, &training_settings(&tracked)), vec!["init.track_max_views"]);
     }
 
