@@ -200,8 +200,8 @@ pub fn n2_seeds(
                 turn_cost: cfg.track_turn_cost,
                 brightness_cost: cfg.track_brightness_cost,
                 claimed_run_mm: cfg.track_claimed_run_mm,
-                max_points: cfg.track_max_points,
-                rounds: cfg.track_rounds,
+                max_points: cfg.track_max_points_for(views.len()),
+                rounds: cfg.track_rounds_for(views.len()),
             };
             // With `init.arrival_track_starts`, tracks start only where both views fill at once;
             // with `init.arrival_track_claims`, a claim whose point fills at two times gives way
