@@ -91,10 +91,10 @@ fn shipped_configs_load_and_matrices_point_at_them() {
     // Its tracks in rounds: the branches of the tracked vessels (only the member tracks).
     assert!(fine.init.track_rounds > 1 && quick.init.track_rounds == 1);
     assert!(fine.init.track_max_points > quick.init.track_max_points);
-    // With two views, more rounds and room for them; three views keep four rounds.
-    assert_eq!((fine.init.track_rounds_for(2), fine.init.track_rounds_for(3)), (6, 4));
-    assert!(fine.init.track_max_points_for(2) > fine.init.track_max_points_for(3));
-    (fine.init.track_rounds_two_views, fine.init.track_max_points_two_views) = (None, None);
+    // Where arrival maps check the tracks' claims, more rounds and room for them; elsewhere four.
+    assert_eq!((fine.init.track_rounds_for(true), fine.init.track_rounds_for(false)), (6, 4));
+    assert!(fine.init.track_max_points_for(true) > fine.init.track_max_points_for(false));
+    (fine.init.track_rounds_arrival, fine.init.track_max_points_arrival) = (None, None);
     fine.init.track_rounds = quick.init.track_rounds;
     fine.init.track_max_points = quick.init.track_max_points;
     // The tracks read the prior's projection fitted to each view and not dilated; the image

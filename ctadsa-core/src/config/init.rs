@@ -133,13 +133,14 @@ pub struct InitConfig {
     /// Rounds of tracking: the first starts beside the prior, each further one beside the
     /// tracks of the round before (the branches of new vessels, which never touch the prior).
     pub track_rounds: usize,
-    /// `track_max_points` for runs of two views or fewer (absent: `track_max_points`).
-    pub track_max_points_two_views: Option<usize>,
-    /// `track_rounds` for runs of two views or fewer (absent: `track_rounds`). Six rounds and
-    /// 80,000 points instead of four and 60,000, quick-512 with two views and arrival maps:
-    /// never seeded lower on 8 of 8 shared and 8 of 8 held-out BraVa trees, CD_ROI on 7 and 5
-    /// of 8 (docs/RESULTS.md, "Two views: where the centreline loses").
-    pub track_rounds_two_views: Option<usize>,
+    /// `track_max_points` for runs whose tracks' claims the arrival maps check
+    /// (`arrival_track_claims` with two views and the case's maps; absent: `track_max_points`).
+    pub track_max_points_arrival: Option<usize>,
+    /// `track_rounds` for the same runs (absent: `track_rounds`): their tracks go farther.
+    /// Six rounds and 80,000 points instead of four and 60,000, quick-512: never seeded lower
+    /// on 8 of 8 shared and 8 of 8 held-out BraVa trees, CD_ROI on 7 and 5 of 8
+    /// (docs/RESULTS.md, "Two views: where the centreline loses").
+    pub track_rounds_arrival: Option<usize>,
     /// `fit_prior_projection` for the tracker's residual (absent: as the image seeds'). The
     /// tracks and the image seeds then read two residuals, back-projected apart. Fitted and
     /// not dilated (`track_prior_dilation_px = 0`) for the tracks alone, on the 8 BraVa trees
@@ -195,15 +196,15 @@ impl InitConfig {
         self.arrival_seeds || self.arrival_track_starts || self.arrival_track_claims || self.arrival_reseeds
     }
 
-    /// The most tracked seeds for a run of `views` views (`track_max_points`,
-    /// `track_max_points_two_views`).
-    pub fn track_max_points_for(&self, views: usize) -> usize {
-        self.track_max_points_two_views.filter(|_| views <= 2).unwrap_or(self.track_max_points)
+    /// The most tracked seeds (`track_max_points`; `track_max_points_arrival` where
+    /// `claims_checked`: the arrival maps check the tracks' claims).
+    pub fn track_max_points_for(&self, claims_checked: bool) -> usize {
+        self.track_max_points_arrival.filter(|_| claims_checked).unwrap_or(self.track_max_points)
     }
 
-    /// The rounds of tracking for a run of `views` views (`track_rounds`, `track_rounds_two_views`).
-    pub fn track_rounds_for(&self, views: usize) -> usize {
-        self.track_rounds_two_views.filter(|_| views <= 2).unwrap_or(self.track_rounds)
+    /// The rounds of tracking (`track_rounds`; `track_rounds_arrival` where `claims_checked`).
+    pub fn track_rounds_for(&self, claims_checked: bool) -> usize {
+        self.track_rounds_arrival.filter(|_| claims_checked).unwrap_or(self.track_rounds)
     }
 
     /// The image seeds' spacing (mm) for a run of `views` views (`seed_spacing_mm`,
@@ -240,8 +241,8 @@ impl Default for InitConfig {
             track_claimed_run_mm: 1.0,
             track_max_points: 20_000,
             track_rounds: 1,
-            track_max_points_two_views: None,
-            track_rounds_two_views: None,
+            track_max_points_arrival: None,
+            track_rounds_arrival: None,
             track_fit_prior_projection: None,
             track_prior_dilation_px: None,
             connected_to_prior_mm: 3.0,

@@ -14,9 +14,9 @@ fn unknown_keys_and_bad_values_name_the_key() {
         assert!(err.contains(key), "{err}");
         assert!(Config::load(None, &[format!("{key}=6")]).is_ok());
     }
-    // The two-view tracking settings are bounded as the settings they replace.
-    for (key, bad, good) in
-        [("init.track_rounds_two_views", 9, 6), ("init.track_max_points_two_views", 30_000_000, 80_000)]
+    // The tracking settings of runs whose claims the arrival maps check are bounded as the
+    // settings they replace.
+    for (key, bad, good) in [("init.track_rounds_arrival", 9, 6), ("init.track_max_points_arrival", 30_000_000, 80_000)]
     {
         let err = Config::load(None, &[format!("{key}={bad}")]).unwrap_err().to_string();
         assert!(err.contains(key), "{err}");

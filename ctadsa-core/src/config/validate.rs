@@ -65,7 +65,7 @@ impl Config {
             ("init.n2", self.init.n2),
             ("init.n2_two_views", self.init.n2_two_views.unwrap_or(0)),
             ("init.track_max_points", self.init.track_max_points),
-            ("init.track_max_points_two_views", self.init.track_max_points_two_views.unwrap_or(0)),
+            ("init.track_max_points_arrival", self.init.track_max_points_arrival.unwrap_or(0)),
             ("densify.max_gaussians", self.densify.max_gaussians),
             ("densify.reseed_n", self.densify.reseed_n),
             ("loss.pa_samples", self.loss.pa_samples),
@@ -97,8 +97,8 @@ impl Config {
         check((0.0..=10.0).contains(&self.init.track_start_mm), "init.track_start_mm", "must be in [0, 10] mm")?;
         check((1..=8).contains(&self.init.track_rounds), "init.track_rounds", "must be in 1..=8")?;
         check(
-            self.init.track_rounds_two_views.is_none_or(|r| (1..=8).contains(&r)),
-            "init.track_rounds_two_views",
+            self.init.track_rounds_arrival.is_none_or(|r| (1..=8).contains(&r)),
+            "init.track_rounds_arrival",
             "must be in 1..=8",
         )?;
         for (k, px) in [

@@ -194,19 +194,20 @@ pub fn n2_seeds(
                 }
             };
             let res = Residuals { views, images: &read.values, levels: &levels };
+            // With `init.arrival_track_starts`, tracks start only where both views fill at once;
+            // with `init.arrival_track_claims`, a claim whose point fills at two times gives way
+            // to a point that fills at once, and the tracks, going farther, get their own rounds.
+            let maps = arrival_pair(cfg, views, arrival);
+            let claims_checked = maps.is_some() && cfg.arrival_track_claims;
             let settings = TrackSettings {
                 start_mm: cfg.track_start_mm,
                 level: cfg.track_level,
                 turn_cost: cfg.track_turn_cost,
                 brightness_cost: cfg.track_brightness_cost,
                 claimed_run_mm: cfg.track_claimed_run_mm,
-                max_points: cfg.track_max_points_for(views.len()),
-                rounds: cfg.track_rounds_for(views.len()),
+                max_points: cfg.track_max_points_for(claims_checked),
+                rounds: cfg.track_rounds_for(claims_checked),
             };
-            // With `init.arrival_track_starts`, tracks start only where both views fill at once;
-            // with `init.arrival_track_claims`, a claim whose point fills at two times gives way
-            // to a point that fills at once.
-            let maps = arrival_pair(cfg, views, arrival);
             let starts: Cow<'_, [Scored]> = match maps {
                 Some(maps) if cfg.arrival_track_starts => {
                     Cow::Owned(arriving(cfg, views, maps, read.scored.par_iter().copied()))
