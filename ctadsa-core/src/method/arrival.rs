@@ -68,13 +68,8 @@ fn pixel_of(view: &ConeBeamView, p: DVec3) -> Option<(i64, i64)> {
     view.project(p).map(|uv| (uv.x.round() as i64, uv.y.round() as i64))
 }
 
-/// The frames of the 3 × 3 pixels around `view`'s projection of `p` (a pixel no vessel fills,
+/// The frames of the 3 × 3 pixels around the pixel `(u, v)` of `map` (a pixel no vessel fills,
 /// or off the detector, is [`NO_ARRIVAL`]).
-pub fn frames_around(view: &ConeBeamView, map: &Image, p: DVec3) -> [f32; 9] {
-    pixel_of(view, p).map_or([NO_ARRIVAL; 9], |px| frames_at(map, px))
-}
-
-/// The frames of the 3 × 3 pixels around the pixel `(u, v)` of `map`.
 fn frames_at(map: &Image, (u, v): (i64, i64)) -> [f32; 9] {
     let mut out = [NO_ARRIVAL; 9];
     for (k, slot) in out.iter_mut().enumerate() {
@@ -86,7 +81,7 @@ fn frames_at(map: &Image, (u, v): (i64, i64)) -> [f32; 9] {
     out
 }
 
-/// Whether a point's pixels in a view (the 3 × 3 of [`frames_around`]) lie wholly in the prior's
+/// Whether a point's pixels in a view (the 3 × 3 of [`frames_at`]) lie wholly in the prior's
 /// projection: all [`HIDDEN_BY_PRIOR`] or unfilled, at least one hidden.
 fn hidden(frames: &[f32]) -> bool {
     !frames.iter().any(|&f| f >= 0.0) && frames.contains(&HIDDEN_BY_PRIOR)
@@ -107,7 +102,7 @@ pub fn frames_agree(first: &[f32], second: &[f32], tolerance_frames: f32) -> boo
 /// The frames a view shows for a point ([`frames_seen`]).
 #[derive(Debug, Clone, PartialEq)]
 pub enum Seen {
-    /// The 3 × 3 pixels around its projection ([`frames_around`]).
+    /// The 3 × 3 pixels around its projection (off the detector: all [`NO_ARRIVAL`]).
     Around([f32; 9]),
     /// Where those lie wholly in the prior's projection, the frames filled in the window around
     /// it, outside the prior's projection.
@@ -124,7 +119,7 @@ impl std::ops::Deref for Seen {
     }
 }
 
-/// The frames `view` shows for the point `p`: the 3 × 3 of [`frames_around`], or, where those
+/// The frames `view` shows for the point `p`: the 3 × 3 pixels around its projection, or, where those
 /// lie wholly in the prior's projection and `exit_px` > 0, the filled pixels within `exit_px`
 /// pixels (a square) of the projection, outside the prior's: where a vessel behind the prior
 /// leaves its projection, it shows its own frame (none filled there: the 3 × 3, which cannot tell).

@@ -198,7 +198,8 @@ pub fn n2_seeds(
             // with `init.arrival_track_claims`, a claim whose point fills at two times gives way
             // to a point that fills at once, and the tracks, going farther, get their own rounds.
             let maps = arrival_pair(cfg, views, arrival);
-            let claims_checked = maps.is_some() && cfg.arrival_track_claims;
+            let together = maps.filter(|_| cfg.arrival_track_claims).map(|maps| fills_at_once(cfg, views, maps));
+            let claims_checked = together.is_some();
             let settings = TrackSettings {
                 start_mm: cfg.track_start_mm,
                 level: cfg.track_level,
@@ -214,7 +215,6 @@ pub fn n2_seeds(
                 }
                 _ => Cow::Borrowed(&read.scored),
             };
-            let together = maps.filter(|_| cfg.arrival_track_claims).map(|maps| fills_at_once(cfg, views, maps));
             track_from_prior(&res, &starts, s, settings, together.as_ref().map(|f| f as FillsAtOnce))
         }
         _ => Vec::new(),
