@@ -769,6 +769,23 @@ fn no_ground_truth_steers_the_method() {
             let ns = d.new_surface.expect("the case has a prior");
             let banded: f64 = ns.bands.iter().map(|band| band.area_mm2).sum();
             assert!((banded - ns.area_mm2).abs() <= 1e-9 * ns.area_mm2.max(1.0), "{ns:?}");
+            // The new centreline's classes cover it, and its share on a true vessel is the
+            // centreline precision of the summary (the same criterion, the same centreline.swc).
+            let nc = d.new_centreline.expect("the run wrote centreline.swc");
+            let total = nc.on_vessel + nc.ghost_near + nc.ghost_far + nc.off_views;
+            let scores = summary.centreline.scores.expect("the case has a tree");
+            assert!(
+                (nc.length_mm - scores.new_length_mm).abs() <= 1e-6 * nc.length_mm.max(1.0),
+                "{nc:?} vs {scores:?}"
+            );
+            if nc.length_mm > 0.0 {
+                assert!((total - 1.0).abs() < 1e-9, "new centreline classes sum to {total}");
+                // (centreline.swc holds positions to 0.1 µm, the scorer had them whole)
+                assert!((nc.on_vessel - scores.precision).abs() < 1e-4, "{nc:?} vs {scores:?}");
+            } else {
+                assert_eq!(total, 0.0, "{nc:?}");
+            }
+            eprintln!("tiny case after 30 iterations, new centreline: {nc:?}");
             // The seeds alone: the run's own image seeds, classes that sum to 1.
             let s = ctadsa_core::eval::diagnose::diagnose_seeds(c, &tiny_config(30)).unwrap();
             let total = s.seeded + s.not_in_masks + s.behind_prior + s.not_seeded;

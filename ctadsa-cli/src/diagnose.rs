@@ -76,6 +76,18 @@ pub fn run(args: DiagnoseArgs) -> Result<()> {
             );
         }
     }
+    if let Some(c) = &d.new_centreline {
+        println!("\nnew centreline (centreline.swc, type 4): {:.0} mm", c.length_mm);
+        println!("| where it lies | share of the new length |\n|---|---:|");
+        for (name, v) in [
+            ("on a true vessel (within its radius + 0.5 mm)", c.on_vessel),
+            ("a ghost within 2 mm of a true vessel (in every view's vessel mask)", c.ghost_near),
+            ("a ghost farther from every true vessel (in every view's vessel mask)", c.ghost_far),
+            ("off some view's vessel mask", c.off_views),
+        ] {
+            println!("| {name} | {:.1} % |", 100.0 * v);
+        }
+    }
     if let Some(path) = &args.points {
         write_points(path, &d.points)?;
     }

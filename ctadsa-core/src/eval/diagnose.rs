@@ -15,7 +15,9 @@
 //! 6. **faded** — seeded, but the density there stayed below the iso-level.
 //!
 //! Each class is a fraction of the missing centreline length. Beside it, where the run's new
-//! surface lies ([`crate::eval::new_surface`]).
+//! surface lies ([`crate::eval::new_surface`]) and, for runs that wrote `centreline.swc`, where
+//! its new centreline lies ([`crate::eval::new_centreline`]: on a vessel, a ghost the views
+//! cannot tell from one, or off the views' vessels).
 
 use std::path::Path;
 
@@ -31,11 +33,13 @@ use crate::data::mesh::distance::SurfaceIndex;
 use crate::data::mesh::io::read_mesh;
 use crate::data::run_folder::read_run_summary;
 use crate::data::tree::Segment;
+use crate::data::tree::swc::read_swc;
 use crate::data::volume::Grid;
 use crate::data::volume::Volume;
 use crate::data::volume::nifti_io::read_nifti;
 use crate::error::{CoreError, Result};
 use crate::eval::metrics::nearest_distances;
+use crate::eval::new_centreline::{NewCentreline, new_centreline};
 use crate::eval::new_surface::{NewSurface, new_surface};
 use crate::eval::score::CaseTruth;
 use crate::eval::surface_metrics::{RECALL_SLACK_MM, centreline_points};
@@ -88,6 +92,9 @@ pub struct Diagnosis {
     pub missing: LossBreakdown,
     /// `None` for a case without a prior.
     pub new_surface: Option<NewSurface>,
+    /// Where the run's new centreline lies; `None` for a run without `centreline.swc`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub new_centreline: Option<NewCentreline>,
     /// Every classified point of the missing centreline (not in the JSON: `ctadsa diagnose
     /// --points` writes them as CSV).
     #[serde(skip)]
@@ -453,7 +460,15 @@ pub fn diagnose_run(case: &Case, run_dir: &Path) -> Result<Diagnosis> {
         truth: &truth_index,
     };
     let (missing, points) = diagnose(missing, &inputs);
-    Ok(Diagnosis { missing, new_surface: new, points })
+    let swc = run_dir.join("centreline.swc");
+    let new_centreline = match (swc.exists(), &truth.centreline) {
+        (true, Some(whole)) => {
+            let masks: Vec<Mask> = images.iter().map(|i| vessel_mask(i, cfg.init.mask_threshold)).collect();
+            Some(new_centreline(&read_swc(&swc)?.tree, whole, views.views(), &masks))
+        }
+        _ => None,
+    };
+    Ok(Diagnosis { missing, new_surface: new, new_centreline, points })
 }
 
 #[cfg(test)]

@@ -1,10 +1,11 @@
 //! Evaluation against ground truth: exact surface distances and coverage, the paper's
-//! point-set convention (with ICP), scoring of a run, and where missing vessels are lost.
+//! point-set convention (with ICP), scoring of a run, where missing vessels are lost and where the new centreline lies.
 
 pub mod centreline_metrics;
 pub mod diagnose;
 pub mod icp;
 pub mod metrics;
+pub mod new_centreline;
 pub mod new_surface;
 pub mod score;
 pub mod surface_metrics;
