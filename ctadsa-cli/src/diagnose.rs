@@ -45,19 +45,20 @@ pub fn run(args: DiagnoseArgs) -> Result<()> {
     let d = diagnose_run(&case, run_dir)?;
     let b = &d.missing;
     println!("missing centreline: {:.0} mm", b.length_mm);
-    println!("| class | share of the missing length |\n|---|---:|");
-    for (name, v) in [
-        ("found (surface within radius + 0.5 mm)", b.found),
-        ("not in every view's vessel mask", b.not_in_masks),
-        ("… of which an N2 seed lies within 1.5 mm", b.not_in_masks_seeded),
-        ("behind the prior's dilated projection in some view", b.behind_prior),
-        ("… of which an N2 seed lies within 1.5 mm", b.behind_prior_seeded),
-        ("in every residual, but no N2 seed within 1.5 mm", b.not_seeded),
-        ("seeded, signal explained at a wrong depth in every view", b.misplaced),
-        ("seeded, density below the iso-level", b.faded),
-    ] {
-        println!("| {name} | {:.1} % |", 100.0 * v);
-    }
+    print_shares(
+        "class",
+        "the missing length",
+        &[
+            ("found (surface within radius + 0.5 mm)", b.found),
+            ("not in every view's vessel mask", b.not_in_masks),
+            ("… of which an N2 seed lies within 1.5 mm", b.not_in_masks_seeded),
+            ("behind the prior's dilated projection in some view", b.behind_prior),
+            ("… of which an N2 seed lies within 1.5 mm", b.behind_prior_seeded),
+            ("in every residual, but no N2 seed within 1.5 mm", b.not_seeded),
+            ("seeded, signal explained at a wrong depth in every view", b.misplaced),
+            ("seeded, density below the iso-level", b.faded),
+        ],
+    );
     println!("never seeded (not found, no N2 seed within 1.5 mm): {:.1} %", 100.0 * b.never_seeded());
     if let Some(ns) = &d.new_surface {
         let missing = ns.missing_area_mm2.map_or(String::new(), |a| format!(" (the true missing vessels: {a:.0} mm²)"));
@@ -78,15 +79,16 @@ pub fn run(args: DiagnoseArgs) -> Result<()> {
     }
     if let Some(c) = &d.new_centreline {
         println!("\nnew centreline (centreline.swc, type 4): {:.0} mm", c.length_mm);
-        println!("| where it lies | share of the new length |\n|---|---:|");
-        for (name, v) in [
-            ("on a true vessel (within its radius + 0.5 mm)", c.on_vessel),
-            ("a ghost within 2 mm of a true vessel (in every view's vessel mask)", c.ghost_near),
-            ("a ghost farther from every true vessel (in every view's vessel mask)", c.ghost_far),
-            ("off some view's vessel mask", c.off_views),
-        ] {
-            println!("| {name} | {:.1} % |", 100.0 * v);
-        }
+        print_shares(
+            "where it lies",
+            "the new length",
+            &[
+                ("on a true vessel (within its radius + 0.5 mm)", c.on_vessel),
+                ("a ghost within 2 mm of a true vessel (in every view's vessel mask)", c.ghost_near),
+                ("a ghost farther from every true vessel (in every view's vessel mask)", c.ghost_far),
+                ("off some view's vessel mask", c.off_views),
+            ],
+        );
     }
     if let Some(path) = &args.points {
         write_points(path, &d.points)?;
@@ -116,15 +118,16 @@ fn seeds(case: &Case, args: &DiagnoseArgs) -> Result<()> {
     let cfg = Config::load(args.config.as_deref(), &args.overrides)?;
     let c = diagnose_seeds(case, &cfg)?;
     println!("missing centreline: {:.0} mm; {} image seeds", c.length_mm, c.seeds);
-    println!("| class | share of the missing length |\n|---|---:|");
-    for (name, v) in [
-        ("an N2 seed within 1.5 mm", c.seeded),
-        ("not in every view's vessel mask", c.not_in_masks),
-        ("behind the prior's dilated projection in some view", c.behind_prior),
-        ("in every residual, but no N2 seed within 1.5 mm", c.not_seeded),
-    ] {
-        println!("| {name} | {:.1} % |", 100.0 * v);
-    }
+    print_shares(
+        "class",
+        "the missing length",
+        &[
+            ("an N2 seed within 1.5 mm", c.seeded),
+            ("not in every view's vessel mask", c.not_in_masks),
+            ("behind the prior's dilated projection in some view", c.behind_prior),
+            ("in every residual, but no N2 seed within 1.5 mm", c.not_seeded),
+        ],
+    );
     println!(
         "seeds within 1.5 mm of the missing centreline: {:.1} % (median {:.2} mm from it); farther than 2 mm from every true vessel: {:.1} %",
         100.0 * c.on_missing,
@@ -132,6 +135,14 @@ fn seeds(case: &Case, args: &DiagnoseArgs) -> Result<()> {
         100.0 * c.ghosts
     );
     write_json(args.json.as_deref(), &c)
+}
+
+/// A Markdown table of shares (fractions, printed in %) of `of`.
+fn print_shares(what: &str, of: &str, rows: &[(&str, f64)]) {
+    println!("| {what} | share of {of} |\n|---|---:|");
+    for (name, v) in rows {
+        println!("| {name} | {:.1} % |", 100.0 * v);
+    }
 }
 
 fn write_json(path: Option<&std::path::Path>, value: &impl serde::Serialize) -> Result<()> {

@@ -10,6 +10,15 @@ use crate::data::projector::project_volume;
 use crate::data::volume::{Grid, Volume};
 use crate::stats::percentile;
 
+/// The row-major index of the pixel of `view` that `p` (mm) projects into, if on the detector:
+/// where a point's mask value is read.
+pub fn pixel_of(view: &ConeBeamView, p: glam::DVec3) -> Option<usize> {
+    let uv = view.project(p)?;
+    let (c, r) = (uv.x.round(), uv.y.round());
+    (c >= 0.0 && r >= 0.0 && c < view.width() as f64 && r < view.height() as f64)
+        .then(|| r as usize * view.width() as usize + c as usize)
+}
+
 /// A binary image mask (row-major).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Mask {

@@ -28,7 +28,7 @@ use serde::{Deserialize, Serialize};
 use crate::config::{Config, SeedMode};
 use crate::data::case::Case;
 use crate::data::case::images::Image;
-use crate::data::masks::{Mask, prior_solid, silhouettes, vessel_mask};
+use crate::data::masks::{Mask, pixel_of, prior_solid, silhouettes, vessel_mask};
 use crate::data::mesh::distance::SurfaceIndex;
 use crate::data::mesh::io::read_mesh;
 use crate::data::run_folder::read_run_summary;
@@ -117,13 +117,6 @@ pub struct DiagnoseInputs<'a> {
     pub truth: &'a SurfaceIndex,
 }
 
-fn pixel(view: &ConeBeamView, p: DVec3) -> Option<usize> {
-    let uv = view.project(p)?;
-    let (c, r) = (uv.x.round(), uv.y.round());
-    (c >= 0.0 && r >= 0.0 && c < view.width() as f64 && r < view.height() as f64)
-        .then(|| r as usize * view.width() as usize + c as usize)
-}
-
 /// Density of the voxel containing `p` (0 outside the volume).
 fn density_at(v: &Volume<f32>, p: DVec3) -> f64 {
     let g = v.grid;
@@ -207,7 +200,7 @@ pub fn diagnose(missing: &[Segment], inp: &DiagnoseInputs) -> (LossBreakdown, Ve
     let mut classified = Vec::with_capacity(points.len());
     for (k, cp) in points.iter().enumerate() {
         let (p, r, w) = (cp.position_mm, cp.radius_mm, cp.length_mm);
-        let px: Vec<Option<usize>> = inp.views.iter().map(|v| pixel(v, p)).collect();
+        let px: Vec<Option<usize>> = inp.views.iter().map(|v| pixel_of(v, p)).collect();
         let seeded = to_seed[k] <= SEED_RADIUS_MM;
         let class = if to_completed[k] <= r + RECALL_SLACK_MM {
             PointClass::Found
@@ -308,7 +301,7 @@ pub fn seed_coverage(
     let to_seed = nearest_distances(&centres, seeds);
     let mut out = SeedCoverage { seeds: seeds.len(), on_missing_offset_mm: f64::NAN, ..SeedCoverage::default() };
     for (k, cp) in points.iter().enumerate() {
-        let px: Vec<Option<usize>> = views.iter().map(|v| pixel(v, cp.position_mm)).collect();
+        let px: Vec<Option<usize>> = views.iter().map(|v| pixel_of(v, cp.position_mm)).collect();
         let class = if to_seed[k] <= SEED_RADIUS_MM {
             &mut out.seeded
         } else if px.iter().zip(&masks).any(|(q, m)| !q.is_some_and(|q| m.data[q])) {

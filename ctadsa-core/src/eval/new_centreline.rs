@@ -11,7 +11,7 @@ use ctadsa_render::ConeBeamView;
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
-use crate::data::masks::Mask;
+use crate::data::masks::{Mask, pixel_of};
 use crate::data::tree::{KIND_NEW_VESSEL, Segment, VesselTree};
 use crate::eval::metrics::nearest_points;
 use crate::eval::surface_metrics::{RECALL_SLACK_MM, centreline_points};
@@ -39,14 +39,6 @@ pub struct NewCentreline {
     pub off_views: f64,
 }
 
-/// The pixel of `view` that `p` projects into, if on the detector.
-fn pixel(view: &ConeBeamView, p: DVec3) -> Option<usize> {
-    let uv = view.project(p)?;
-    let (c, r) = (uv.x.round(), uv.y.round());
-    (c >= 0.0 && r >= 0.0 && c < view.width() as f64 && r < view.height() as f64)
-        .then(|| r as usize * view.width() as usize + c as usize)
-}
-
 /// Classifies the new centreline of `predicted` (nodes of type [`KIND_NEW_VESSEL`]) against the
 /// whole true centreline `truth` and the `views` with their vessel `masks` (one per view, as
 /// large as its detector; widened by [`MASK_SLACK_PX`] here).
@@ -67,7 +59,8 @@ pub fn new_centreline(
     let mut out = NewCentreline::default();
     for (p, &(d, i)) in points.iter().zip(&nearest) {
         let true_radius = truth_points.get(i).map_or(0.0, |t| t.radius_mm);
-        let in_every_mask = views.iter().zip(&masks).all(|(v, m)| pixel(v, p.position_mm).is_some_and(|q| m.data[q]));
+        let in_every_mask =
+            views.iter().zip(&masks).all(|(v, m)| pixel_of(v, p.position_mm).is_some_and(|q| m.data[q]));
         let share = if d <= true_radius + RECALL_SLACK_MM {
             &mut out.on_vessel
         } else if !in_every_mask {
@@ -97,16 +90,8 @@ mod tests {
     use crate::data::tree::{KIND_PRIOR_VESSEL, TreeNode};
 
     fn view(primary_deg: f64) -> ConeBeamView {
-        ConeBeamView::from_tigre(&TigreGeometry {
-            dsd_mm: 700.0,
-            dso_mm: 500.0,
-            detector_px: [160, 160],
-            pixel_mm: [0.5, 0.5],
-            offset_mm: [0.0, 0.0],
-            primary_deg,
-            secondary_deg: 0.0,
-        })
-        .unwrap()
+        ConeBeamView::from_tigre(&TigreGeometry { detector_px: [160, 160], ..TigreGeometry::reference(primary_deg) })
+            .unwrap()
     }
 
     /// A vertical line at `(x, y)` from z = −10 to 10 mm.
@@ -127,7 +112,7 @@ mod tests {
                 let mut m =
                     Mask { width: v.width(), height: v.height(), data: vec![false; (v.width() * v.height()) as usize] };
                 for p in centreline_points(truth) {
-                    if let Some(q) = pixel(v, p.position_mm) {
+                    if let Some(q) = pixel_of(v, p.position_mm) {
                         m.data[q] = true;
                     }
                 }
