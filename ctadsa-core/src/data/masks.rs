@@ -10,8 +10,9 @@ use crate::data::projector::project_volume;
 use crate::data::volume::{Grid, Volume};
 use crate::stats::percentile;
 
-/// The row-major index of the pixel of `view` that `p` (mm) projects into, if on the detector:
-/// where a point's mask value is read.
+/// The row-major index of the pixel of `view` that `p` (mm) projects into (the nearest pixel
+/// centre), if on the detector: where a point's mask or image value is read.
+#[inline]
 pub fn pixel_of(view: &ConeBeamView, p: glam::DVec3) -> Option<usize> {
     let uv = view.project(p)?;
     let (c, r) = (uv.x.round(), uv.y.round());

@@ -31,7 +31,7 @@ use rayon::prelude::*;
 use crate::config::{InitConfig, SeedMode};
 use crate::data::case::images::Image;
 use crate::data::masks::{
-    Mask, above, contrast_per_mm, max_filtered, minus_solid, prior_solid, silhouettes, vessel_level,
+    Mask, above, contrast_per_mm, max_filtered, minus_solid, pixel_of, prior_solid, silhouettes, vessel_level,
 };
 use crate::data::mesh::TriMesh;
 use crate::data::mesh::sample::sample_surface;
@@ -43,17 +43,6 @@ use crate::method::arrival::arrives_together;
 use crate::method::model::{GaussianInit, ScaleBounds};
 use crate::method::seed_growth::grow_from;
 use crate::method::tracking::{FillsAtOnce, Residuals, TrackSettings, track_from_prior};
-
-/// Pixel of a world point in a view (nearest pixel centre), if on the detector.
-#[inline]
-pub(crate) fn pixel_of(view: &ConeBeamView, p: DVec3) -> Option<usize> {
-    let uv = view.project(p)?;
-    let (c, r) = (uv.x.round(), uv.y.round());
-    if c < 0.0 || r < 0.0 || c >= view.width() as f64 || r >= view.height() as f64 {
-        return None;
-    }
-    Some(r as usize * view.width() as usize + c as usize)
-}
 
 /// A supported voxel of the back-projection: its score, its centre (mm) and whether every view
 /// that sees it shows residual there (no view passed it only because the prior hides it).

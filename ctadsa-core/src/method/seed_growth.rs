@@ -19,9 +19,10 @@ use ctadsa_render::ConeBeamView;
 use glam::DVec3;
 
 use crate::data::masks::Mask;
+use crate::data::masks::pixel_of;
 use crate::data::volume::edt::squared_edt;
 use crate::data::volume::{Grid, Volume};
-use crate::method::init::{Scored, pixel_of};
+use crate::method::init::Scored;
 
 /// The `candidates` reached by growth from the `start` ones (`start(c)`: the path length (mm)
 /// it starts with, `None`: not a start) through candidates on `grid` (26-connected steps of 1,

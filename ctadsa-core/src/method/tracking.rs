@@ -22,9 +22,10 @@ use ctadsa_render::ConeBeamView;
 use glam::{DVec3, IVec3};
 
 use crate::data::case::images::Image;
+use crate::data::masks::pixel_of;
 use crate::data::volume::edt::squared_edt;
 use crate::data::volume::{Grid, Volume};
-use crate::method::init::{Scored, pixel_of};
+use crate::method::init::Scored;
 
 /// Step along a track (mm).
 pub(crate) const STEP_MM: f64 = 0.5;
