@@ -59,8 +59,10 @@ pub fn new_centreline(
     let mut out = NewCentreline::default();
     for (p, &(d, i)) in points.iter().zip(&nearest) {
         let true_radius = truth_points.get(i).map_or(0.0, |t| t.radius_mm);
-        let in_every_mask =
-            views.iter().zip(&masks).all(|(v, m)| pixel_of(v, p.position_mm).is_some_and(|q| m.data[q]));
+        let in_every_mask = views
+            .iter()
+            .zip(&masks)
+            .all(|(v, m)| pixel_of(v, p.position_mm).is_some_and(|q| m.data.get(q) == Some(&true)));
         let share = if d <= true_radius + RECALL_SLACK_MM {
             &mut out.on_vessel
         } else if !in_every_mask {
