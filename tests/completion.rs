@@ -760,6 +760,21 @@ fn no_ground_truth_steers_the_method() {
                 == (p.to_surface_mm <= p.radius_mm + ctadsa_core::eval::surface_metrics::RECALL_SLACK_MM)));
             assert!((b.found - recall).abs() < 1e-9, "found {} vs recall {recall}", b.found);
             eprintln!("tiny case after 30 iterations: {b:?}");
+            // The calibre bands split the missing length, and their recalls add up to the
+            // surface's found share and to the run's centreline recall.
+            let banded: Vec<_> = d.calibre.iter().filter(|band| band.length_mm > 0.0).collect();
+            eprintln!("tiny case by calibre: {banded:?}");
+            let share: f64 = banded.iter().map(|band| band.share).sum();
+            assert!((share - 1.0).abs() < 1e-9, "bands' shares sum to {share}");
+            let surface: f64 = banded.iter().map(|band| band.share * band.surface_recall).sum();
+            assert!((surface - b.found).abs() < 1e-9, "bands' surface recall {surface} vs {}", b.found);
+            let traced: f64 = banded
+                .iter()
+                .map(|band| band.share * band.centreline_recall.expect("the run wrote centreline.swc"))
+                .sum();
+            // (centreline.swc keeps positions to 0.1 µm, which may move a point across the edge)
+            let scores = summary.centreline.scores.expect("the case has a true tree");
+            assert!((traced - scores.recall).abs() < 5e-3, "bands' centreline recall {traced} vs {}", scores.recall);
             // Another case (here: another name in case.json) is not diagnosed with this run.
             let mut other = c.clone();
             other.file.name = "another".into();

@@ -8,6 +8,7 @@ use clap::Args;
 use ctadsa_core::config::Config;
 use ctadsa_core::data::case::Case;
 use ctadsa_core::error::write_file;
+use ctadsa_core::eval::calibre::CalibreBand;
 use ctadsa_core::eval::diagnose::{ClassifiedPoint, diagnose_run, diagnose_seeds};
 
 #[derive(Args)]
@@ -60,6 +61,7 @@ pub fn run(args: DiagnoseArgs) -> Result<()> {
         ],
     );
     println!("never seeded (not found, no N2 seed within 1.5 mm): {:.1} %", 100.0 * b.never_seeded());
+    print_calibre(&d.calibre);
     if let Some(ns) = &d.new_surface {
         let missing = ns.missing_area_mm2.map_or(String::new(), |a| format!(" (the true missing vessels: {a:.0} mm²)"));
         println!("\nnew surface (the completed surface off the prior): {:.0} mm²{missing}", ns.area_mm2);
@@ -94,6 +96,22 @@ pub fn run(args: DiagnoseArgs) -> Result<()> {
         write_points(path, &d.points)?;
     }
     write_json(args.json.as_deref(), &d)
+}
+
+/// The missing centreline by true diameter (bands without length are left out).
+fn print_calibre(bands: &[CalibreBand]) {
+    if bands.is_empty() {
+        return;
+    }
+    println!("\nby true diameter (found: within radius + 0.5 mm, as the recalls)");
+    println!("| diameter | share of the missing length | found by the surface | found by the centreline |");
+    println!("|---|---:|---:|---:|");
+    let percent = |x: f64| if x.is_nan() { "–".to_string() } else { format!("{:.1} %", 100.0 * x) };
+    for b in bands.iter().filter(|b| b.length_mm > 0.0) {
+        let range = b.to_mm.map_or(format!("≥ {} mm", b.from_mm), |t| format!("{}–{t} mm", b.from_mm));
+        let traced = b.centreline_recall.map_or("no centreline.swc".to_string(), percent);
+        println!("| {range} | {} | {} | {traced} |", percent(b.share), percent(b.surface_recall));
+    }
 }
 
 fn write_points(path: &std::path::Path, points: &[ClassifiedPoint]) -> Result<()> {

@@ -38,6 +38,7 @@ use crate::data::volume::Grid;
 use crate::data::volume::Volume;
 use crate::data::volume::nifti_io::read_nifti;
 use crate::error::{CoreError, Result};
+use crate::eval::calibre::{CalibreBand, by_calibre};
 use crate::eval::metrics::nearest_distances;
 use crate::eval::new_centreline::{NewCentreline, new_centreline};
 use crate::eval::new_surface::{NewSurface, new_surface};
@@ -92,6 +93,10 @@ pub struct Diagnosis {
     pub missing: LossBreakdown,
     /// `None` for a case without a prior.
     pub new_surface: Option<NewSurface>,
+    /// The missing centreline by true diameter: how much of each band the surface and the
+    /// centreline found (empty in summaries written before 2026-12-01).
+    #[serde(default)]
+    pub calibre: Vec<CalibreBand>,
     /// Where the run's new centreline lies; `None` for a run without `centreline.swc`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub new_centreline: Option<NewCentreline>,
@@ -454,14 +459,16 @@ pub fn diagnose_run(case: &Case, run_dir: &Path) -> Result<Diagnosis> {
     };
     let (missing, points) = diagnose(missing, &inputs);
     let swc = run_dir.join("centreline.swc");
-    let new_centreline = match (swc.exists(), &truth.centreline) {
-        (true, Some(whole)) => {
+    let centreline = if swc.exists() { Some(read_swc(&swc)?.tree) } else { None };
+    let new_centreline = match (&centreline, &truth.centreline) {
+        (Some(tree), Some(whole)) => {
             let masks: Vec<Mask> = images.iter().map(|i| vessel_mask(i, cfg.init.mask_threshold)).collect();
-            Some(new_centreline(&read_swc(&swc)?.tree, whole, views.views(), &masks))
+            Some(new_centreline(tree, whole, views.views(), &masks))
         }
         _ => None,
     };
-    Ok(Diagnosis { missing, new_surface: new, new_centreline, points })
+    let calibre = by_calibre(&points, centreline.as_ref());
+    Ok(Diagnosis { missing, new_surface: new, calibre, new_centreline, points })
 }
 
 #[cfg(test)]

@@ -1,6 +1,7 @@
 //! Evaluation against ground truth: exact surface distances and coverage, the paper's
-//! point-set convention (with ICP), scoring of a run, where missing vessels are lost and where the new centreline lies.
+//! point-set convention (with ICP), scoring of a run, where missing vessels are lost (by calibre too) and where the new centreline lies.
 
+pub mod calibre;
 pub mod centreline_metrics;
 pub mod diagnose;
 pub mod icp;
