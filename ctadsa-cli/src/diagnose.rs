@@ -98,7 +98,7 @@ pub fn run(args: DiagnoseArgs) -> Result<()> {
     write_json(args.json.as_deref(), &d)
 }
 
-/// The missing centreline by true diameter (bands without length are left out).
+/// The missing centreline by true diameter.
 fn print_calibre(bands: &[CalibreBand]) {
     if bands.is_empty() {
         return;
@@ -106,8 +106,8 @@ fn print_calibre(bands: &[CalibreBand]) {
     println!("\nby true diameter (found: within radius + 0.5 mm, as the recalls)");
     println!("| diameter | share of the missing length | found by the surface | found by the centreline |");
     println!("|---|---:|---:|---:|");
-    let percent = |x: f64| if x.is_nan() { "–".to_string() } else { format!("{:.1} %", 100.0 * x) };
-    for b in bands.iter().filter(|b| b.length_mm > 0.0) {
+    let percent = |x: f64| format!("{:.1} %", 100.0 * x);
+    for b in bands {
         let range = b.to_mm.map_or(format!("≥ {} mm", b.from_mm), |t| format!("{}–{t} mm", b.from_mm));
         let traced = b.centreline_recall.map_or("no centreline.swc".to_string(), percent);
         println!("| {range} | {} | {} | {traced} |", percent(b.share), percent(b.surface_recall));

@@ -26,13 +26,14 @@ pub struct CalibreBand {
     /// Missing centreline length in the band (mm) and its share of all the missing length.
     pub length_mm: f64,
     pub share: f64,
-    /// Fraction of the band's length the completed surface found (NaN for an empty band).
+    /// Fraction of the band's length the completed surface found.
     pub surface_recall: f64,
-    /// Fraction the completed centreline found (`None` without a centreline; NaN when empty).
+    /// Fraction the completed centreline found (`None` without a centreline).
     pub centreline_recall: Option<f64>,
 }
 
-/// The bands of [`DIAMETER_EDGES_MM`] over the `points` of [`crate::eval::diagnose::diagnose`];
+/// The bands of [`DIAMETER_EDGES_MM`] over the `points` of [`crate::eval::diagnose::diagnose`]
+/// (those without missing length left out);
 /// `centreline` is the run's completed centreline (every node kind counts, as in the recall of
 /// [`crate::eval::centreline_metrics::score_centreline`]).
 pub fn by_calibre(points: &[ClassifiedPoint], centreline: Option<&VesselTree>) -> Vec<CalibreBand> {
@@ -47,7 +48,7 @@ pub fn by_calibre(points: &[ClassifiedPoint], centreline: Option<&VesselTree>) -
     edges
         .iter()
         .enumerate()
-        .map(|(b, &from_mm)| {
+        .filter_map(|(b, &from_mm)| {
             let to_mm = edges.get(b + 1).copied();
             let (mut length, mut surface, mut traced) = (0.0, 0.0, 0.0);
             for (k, p) in points.iter().enumerate() {
@@ -63,15 +64,14 @@ pub fn by_calibre(points: &[ClassifiedPoint], centreline: Option<&VesselTree>) -
                     traced += p.length_mm;
                 }
             }
-            let ratio = |a: f64| if length > 0.0 { a / length } else { f64::NAN };
-            CalibreBand {
+            (length > 0.0).then(|| CalibreBand {
                 from_mm,
                 to_mm,
                 length_mm: length,
-                share: if total > 0.0 { length / total } else { f64::NAN },
-                surface_recall: ratio(surface),
-                centreline_recall: to_centreline.as_ref().map(|_| ratio(traced)),
-            }
+                share: length / total,
+                surface_recall: surface / length,
+                centreline_recall: to_centreline.as_ref().map(|_| traced / length),
+            })
         })
         .collect()
 }
@@ -109,8 +109,9 @@ mod tests {
         };
         let tree = VesselTree { nodes: vec![node(-0.2, None), node(1.2, Some(0))] };
         let bands = by_calibre(&points, Some(&tree));
-        assert_eq!(bands.len(), DIAMETER_EDGES_MM.len() + 1);
-        let (thin, thick) = (&bands[0], &bands[3]);
+        // The two bands between hold no points and are left out.
+        assert_eq!(bands.len(), 2);
+        let (thin, thick) = (&bands[0], &bands[1]);
         assert_eq!((thin.from_mm, thin.to_mm), (0.0, Some(0.8)));
         assert_eq!((thick.from_mm, thick.to_mm), (1.2, None));
         assert!((thin.length_mm - 4.0).abs() < 1e-12 && (thick.length_mm - 2.0).abs() < 1e-12);
@@ -119,7 +120,6 @@ mod tests {
         assert!((thin.centreline_recall.unwrap() - 0.5).abs() < 1e-12, "{:?}", thin.centreline_recall);
         assert_eq!(thick.surface_recall, 0.0);
         assert_eq!(thick.centreline_recall, Some(0.0));
-        assert!(bands[1].surface_recall.is_nan() && bands[1].length_mm == 0.0);
         // Without a centreline the surface recall stands alone.
         assert!(by_calibre(&points, None).iter().all(|b| b.centreline_recall.is_none()));
     }

@@ -94,7 +94,7 @@ pub struct Diagnosis {
     /// `None` for a case without a prior.
     pub new_surface: Option<NewSurface>,
     /// The missing centreline by true diameter: how much of each band the surface and the
-    /// centreline found (empty in summaries written before 2026-12-01).
+    /// centreline found (absent from diagnoses written before 2026-12-01).
     #[serde(default)]
     pub calibre: Vec<CalibreBand>,
     /// Where the run's new centreline lies; `None` for a run without `centreline.swc`.
