@@ -1,25 +1,37 @@
 //! The arrival maps the seed checks read: with `init.arrival_prior_unknown` the pixels of the
 //! prior's projection cannot tell what fills behind the prior, and read as hidden; the maps the
-//! new branches are checked against stay as the case has them.
+//! new branches are checked against stay as the case has them; densification with
+//! `densify.arrival_prune` removes the Gaussians off the prior that they call ghosts.
 
+#![allow(deprecated)] // burn-ndarray is the CPU backend the tests use.
+
+use burn::tensor::Device;
 use ctadsa_core::config::Config;
 use ctadsa_core::data::case::Case;
+use ctadsa_core::data::masks::prior_solid;
 use ctadsa_core::data::synth::arrival::ArrivalSpec;
 use ctadsa_core::data::synth::{SynthConfig, synthesize};
-use ctadsa_core::method::arrival::{HIDDEN_BY_PRIOR, run_arrival_maps, seed_arrival_maps};
+use ctadsa_core::data::volume::Grid;
+use ctadsa_core::method::arrival::{HIDDEN_BY_PRIOR, ghosts_by_arrival, run_arrival_maps, seed_arrival_maps};
+use ctadsa_core::method::train::Trainer;
 
 mod scratch;
 use scratch::scratch;
 
 const QUICK_TOML: &str = include_str!(concat!(env!("CARGO_MANIFEST_DIR"), "/configs/quick.toml"));
 
-#[test]
-fn the_prior_projection_hides_arrival_only_when_asked() {
-    let dir = scratch("arrival-maps-case");
+/// The small procedural case with arrival maps (7.5 frames/s, 300 mm/s), written to `name`.
+fn arrival_case(name: &str) -> Case {
+    let dir = scratch(name);
     let mut synth = SynthConfig::small_procedural("arrival");
     synth.arrival = Some(ArrivalSpec { frames_per_s: 7.5, flow_mm_s: 300.0 });
     synthesize(&synth, &dir, &mut |_| {}).expect("synthesis");
-    let case = Case::load(&dir).expect("case loads");
+    Case::load(&dir).expect("case loads")
+}
+
+#[test]
+fn the_prior_projection_hides_arrival_only_when_asked() {
+    let case = arrival_case("arrival-maps-case");
     let config = |unknown: bool| {
         let sets = vec!["run.views=[0,1]".to_string(), format!("init.arrival_prior_unknown={unknown}")];
         Config::from_toml_str(QUICK_TOML, "configs/quick.toml", &sets).unwrap()
@@ -46,4 +58,55 @@ fn the_prior_projection_hides_arrival_only_when_asked() {
         assert!(hidden > 50 && hidden_on_vessel as f64 >= 0.8 * hidden as f64, "{hidden_on_vessel} of {hidden}");
         assert!(shown > 10, "{shown} pixels keep a frame");
     }
+}
+
+/// With `densify.arrival_prune` a densification removes exactly the Gaussians off the prior whose
+/// centres fill at two times (the image seeds unchecked, so that there are some); without it
+/// they stay.
+#[test]
+fn densification_prunes_the_gaussians_that_arrival_calls_ghosts() {
+    let case = arrival_case("arrival-prune-case");
+    let config = |prune: bool| {
+        let sets = [
+            "run.views=[0,1]",
+            "init.arrival_seeds=false",
+            "init.arrival_reseeds=true",
+            "densify.enabled=true",
+            "densify.from=0",
+            "densify.grad_threshold=1e9",
+        ]
+        .map(String::from)
+        .into_iter()
+        .chain([format!("densify.arrival_prune={prune}")])
+        .collect::<Vec<_>>();
+        Config::from_toml_str(QUICK_TOML, "configs/quick.toml", &sets).unwrap()
+    };
+    let maps = seed_arrival_maps(&case, &config(true)).unwrap().expect("the case has maps");
+    let prior = case.prior_mesh().unwrap().expect("the case has a prior");
+    let trained = |prune: bool| {
+        let mut t = Trainer::new(&case, config(prune), Device::ndarray().autodiff()).unwrap();
+        let before = t.model().len();
+        let plan = t.densify().unwrap();
+        let solid = prior_solid(&prior, Grid::covering(t.working_box(), t.voxel_mm()).unwrap());
+        let means: Vec<glam::DVec3> = t
+            .host_gaussians()
+            .0
+            .chunks_exact(3)
+            .map(|m| glam::DVec3::new(f64::from(m[0]), f64::from(m[1]), f64::from(m[2])))
+            .collect();
+        let init = &t.cfg().init;
+        let (tolerance, exit) = (init.arrival_tolerance_frames as f32, init.arrival_prior_exit_px);
+        let ghosts = ghosts_by_arrival(t.views().views(), &maps, Some(&solid), &means, tolerance, exit);
+        (before, plan.pruned, t.model().len(), ghosts.iter().filter(|&&g| g).count())
+    };
+    let (before, pruned_off, left_off, ghosts_off) = trained(false);
+    let (before_on, pruned_on, left_on, ghosts_on) = trained(true);
+    eprintln!(
+        "{before} Gaussians; without the prune {pruned_off} pruned, {ghosts_off} ghosts left; with it {pruned_on}, {ghosts_on}"
+    );
+    assert_eq!(before, before_on, "the same start");
+    assert!(ghosts_off >= 10, "unchecked image seeds leave ghosts to prune: {ghosts_off}");
+    assert_eq!(ghosts_on, 0, "no ghost left after the prune");
+    assert_eq!(pruned_on, pruned_off + ghosts_off, "exactly the ghosts pruned");
+    assert_eq!(left_off - left_on, ghosts_off);
 }

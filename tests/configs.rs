@@ -95,6 +95,9 @@ fn shipped_configs_load_and_matrices_point_at_them() {
     assert_eq!((fine.init.track_rounds_for(true), fine.init.track_rounds_for(false)), (6, 4));
     assert!(fine.init.track_max_points_for(true) > fine.init.track_max_points_for(false));
     (fine.init.track_rounds_arrival, fine.init.track_max_points_arrival) = (None, None);
+    // Where arrival maps check the seeds, densification prunes the ghosts they show.
+    assert!(fine.densify.arrival_prune && !quick.densify.arrival_prune);
+    fine.densify.arrival_prune = false;
     fine.init.track_rounds = quick.init.track_rounds;
     fine.init.track_max_points = quick.init.track_max_points;
     // The tracks read the prior's projection fitted to each view and not dilated; the image

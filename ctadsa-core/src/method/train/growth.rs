@@ -40,6 +40,7 @@ impl Trainer {
             self.iteration,
             self.cfg.run.seed,
         );
+        let plan = self.without_arrival_ghosts(plan, &params)?;
         if plan.keep.is_empty() && plan.added.is_empty() {
             // An empty model renders nothing and cannot grow back: say so instead of finishing
             // the run with an empty mesh.
@@ -58,6 +59,49 @@ impl Trainer {
         self.device_stats = None;
         self.model = Some(model);
         self.optim = optim;
+        Ok(plan)
+    }
+
+    /// `plan` without the Gaussians, kept or added, that the arrival maps call ghosts
+    /// (`densify.arrival_prune`; [`crate::method::arrival::ghosts_by_arrival`]); as it is
+    /// without maps for both of two views.
+    fn without_arrival_ghosts(
+        &self,
+        mut plan: densify::DensifyPlan,
+        params: &crate::method::model::GaussianInit,
+    ) -> Result<densify::DensifyPlan> {
+        let init = &self.cfg.init;
+        let maps = crate::method::init::arrival_pair(init, self.views.views(), self.arrival.as_deref());
+        let Some(maps) = maps.filter(|_| self.cfg.densify.arrival_prune) else { return Ok(plan) };
+        let grid = crate::data::volume::Grid::covering(&self.working_box, self.voxel_mm)?;
+        let solid = self.prior.as_ref().map(|p| crate::data::masks::prior_solid(p, grid));
+        let ghosts = |means: &mut dyn Iterator<Item = &[f32]>| {
+            let centres: Vec<glam::DVec3> =
+                means.map(|m| glam::DVec3::new(f64::from(m[0]), f64::from(m[1]), f64::from(m[2]))).collect();
+            let (tolerance, exit) = (init.arrival_tolerance_frames as f32, init.arrival_prior_exit_px);
+            crate::method::arrival::ghosts_by_arrival(
+                self.views.views(),
+                maps,
+                solid.as_ref(),
+                &centres,
+                tolerance,
+                exit,
+            )
+        };
+        let kept = ghosts(&mut plan.keep.iter().map(|&i| &params.means[3 * i..3 * i + 3]));
+        let before = plan.keep.len();
+        plan.keep = plan.keep.iter().zip(&kept).filter(|(_, g)| !**g).map(|(&i, _)| i).collect();
+        plan.pruned += before - plan.keep.len();
+        let added = ghosts(&mut plan.added.means.chunks_exact(3));
+        let rows = |data: &[f32], cols: usize| -> Vec<f32> {
+            data.chunks_exact(cols).zip(&added).filter(|(_, g)| !**g).flat_map(|(r, _)| r.iter().copied()).collect()
+        };
+        let a = &plan.added;
+        plan.added = crate::method::model::GaussianInit {
+            means: rows(&a.means, 3),
+            raw_scales: rows(&a.raw_scales, 3),
+            rotations: rows(&a.rotations, 4),
+        };
         Ok(plan)
     }
 
