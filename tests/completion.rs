@@ -775,6 +775,12 @@ fn no_ground_truth_steers_the_method() {
             // (centreline.swc keeps positions to 0.1 µm, which may move a point across the edge)
             let scores = summary.centreline.scores.expect("the case has a true tree");
             assert!((traced - scores.recall).abs() < 5e-3, "bands' centreline recall {traced} vs {}", scores.recall);
+            // What the surface finds and the centreline does not: the surface's found share
+            // less the part both find, split three ways.
+            let gap = d.untraced.expect("the run wrote centreline.swc");
+            assert!([gap.beside_prior, gap.beside_new, gap.none_near].iter().all(|&s| s >= 0.0), "{gap:?}");
+            assert!(gap.total() <= b.found + 1e-9, "{gap:?} within the found share {}", b.found);
+            assert!(b.found - gap.total() <= traced + 5e-3, "found by both {} vs {traced}", b.found - gap.total());
             // Another case (here: another name in case.json) is not diagnosed with this run.
             let mut other = c.clone();
             other.file.name = "another".into();

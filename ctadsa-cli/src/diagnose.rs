@@ -62,6 +62,19 @@ pub fn run(args: DiagnoseArgs) -> Result<()> {
     );
     println!("never seeded (not found, no N2 seed within 1.5 mm): {:.1} %", 100.0 * b.never_seeded());
     print_calibre(&d.calibre);
+    if let Some(u) = &d.untraced {
+        println!("\nfound by the surface, not by the centreline: {:.1} %", 100.0 * u.total());
+        let near = ctadsa_core::eval::untraced::NEAR_MM;
+        print_shares(
+            "the nearest centreline point",
+            "the missing length",
+            &[
+                (&format!("a prior vessel's, within {near} mm (inside its path's cover)"), u.beside_prior),
+                (&format!("a new branch's, within {near} mm (the branch off the vessel's axis)"), u.beside_new),
+                (&format!("none within {near} mm"), u.none_near),
+            ],
+        );
+    }
     if let Some(ns) = &d.new_surface {
         let missing = ns.missing_area_mm2.map_or(String::new(), |a| format!(" (the true missing vessels: {a:.0} mm²)"));
         println!("\nnew surface (the completed surface off the prior): {:.0} mm²{missing}", ns.area_mm2);

@@ -44,6 +44,7 @@ use crate::eval::new_centreline::{NewCentreline, new_centreline};
 use crate::eval::new_surface::{NewSurface, new_surface};
 use crate::eval::score::CaseTruth;
 use crate::eval::surface_metrics::{RECALL_SLACK_MM, centreline_points};
+use crate::eval::untraced::{Untraced, untraced};
 use crate::method::arrival::seed_arrival_maps;
 use crate::method::init::initialise;
 use crate::method::model::ScaleBounds;
@@ -100,6 +101,10 @@ pub struct Diagnosis {
     /// Where the run's new centreline lies; `None` for a run without `centreline.swc`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub new_centreline: Option<NewCentreline>,
+    /// The missing centreline the surface finds and the centreline does not, by where the
+    /// nearest centreline point lies; `None` for a run without `centreline.swc`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub untraced: Option<Untraced>,
     /// Every classified point of the missing centreline (not in the JSON: `ctadsa diagnose
     /// --points` writes them as CSV).
     #[serde(skip)]
@@ -468,7 +473,8 @@ pub fn diagnose_run(case: &Case, run_dir: &Path) -> Result<Diagnosis> {
         _ => None,
     };
     let calibre = by_calibre(&points, centreline.as_ref());
-    Ok(Diagnosis { missing, new_surface: new, calibre, new_centreline, points })
+    let untraced = centreline.as_ref().map(|tree| untraced(&points, tree));
+    Ok(Diagnosis { missing, new_surface: new, calibre, new_centreline, untraced, points })
 }
 
 #[cfg(test)]
