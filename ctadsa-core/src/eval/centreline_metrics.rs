@@ -43,7 +43,7 @@ pub struct CentrelineMatch {
 }
 
 /// Points of every segment, each tagged with its segment's index.
-fn tagged_points(segments: &[Segment]) -> (Vec<CentrelinePoint>, Vec<usize>) {
+pub(crate) fn tagged_points(segments: &[Segment]) -> (Vec<CentrelinePoint>, Vec<usize>) {
     let mut points = Vec::new();
     let mut tags = Vec::new();
     for (k, s) in segments.iter().enumerate() {

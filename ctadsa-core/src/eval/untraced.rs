@@ -14,9 +14,10 @@ use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
 use crate::data::tree::{KIND_PRIOR_VESSEL, VesselTree};
+use crate::eval::centreline_metrics::tagged_points;
 use crate::eval::diagnose::{ClassifiedPoint, PointClass};
 use crate::eval::metrics::nearest_points;
-use crate::eval::surface_metrics::{RECALL_SLACK_MM, centreline_points};
+use crate::eval::surface_metrics::RECALL_SLACK_MM;
 
 /// How far (mm) the nearest centreline point may lie and still be the one the point is beside.
 pub const NEAR_MM: f64 = 2.5;
@@ -42,13 +43,9 @@ impl Untraced {
 /// [`crate::eval::centreline_metrics::score_centreline`]).
 pub fn untraced(points: &[ClassifiedPoint], centreline: &VesselTree) -> Untraced {
     let segments = centreline.segments();
-    let mut predicted = Vec::new();
-    let mut prior_kind = Vec::new();
-    for s in &segments {
-        let p = centreline_points(std::slice::from_ref(s));
-        prior_kind.extend(std::iter::repeat_n(centreline.nodes[s.child].kind == KIND_PRIOR_VESSEL, p.len()));
-        predicted.extend(p.into_iter().map(|p| p.position_mm));
-    }
+    let (predicted, tags) = tagged_points(&segments);
+    let predicted: Vec<DVec3> = predicted.iter().map(|p| p.position_mm).collect();
+    let prior_kind = |k: usize| centreline.nodes[segments[tags[k]].child].kind == KIND_PRIOR_VESSEL;
     let positions: Vec<DVec3> = points.iter().map(|p| DVec3::from_array(p.position_mm)).collect();
     let nearest = nearest_points(&positions, &predicted);
     let total: f64 = points.iter().map(|p| p.length_mm).sum();
@@ -63,7 +60,7 @@ pub fn untraced(points: &[ClassifiedPoint], centreline: &VesselTree) -> Untraced
         let share = p.length_mm / total;
         if distance > NEAR_MM {
             gap.none_near += share;
-        } else if prior_kind[k] {
+        } else if prior_kind(k) {
             gap.beside_prior += share;
         } else {
             gap.beside_new += share;
