@@ -81,6 +81,15 @@ pub struct OutputConfig {
     pub centreline_const_mm_arrival: Option<f64>,
     /// Terminal centreline branches shorter than this are removed (mm).
     pub centreline_min_branch_mm: f64,
+    /// How much the traced paths follow the ridges of the density rather than the middle of
+    /// the solid, in [0, 1] (0: the medial axis alone, TEASAR's penalty on the boundary
+    /// distance; 1: the density alone). Where the level merges a vessel with a neighbour the
+    /// medial axis runs between the two; the density's ridge runs along one of them
+    /// ([`crate::data::volume::skeleton`]).
+    pub centreline_ridge_weight: f64,
+    /// `centreline_ridge_weight` for two-view runs whose new branches are checked against the
+    /// case's arrival maps (as `centreline_const_mm_arrival`; absent: the same).
+    pub centreline_ridge_weight_arrival: Option<f64>,
     /// Centre the new vessels' centreline nodes on the extracted surface (sub-voxel:
     /// `output::centring`) before their radii are measured. On by default: on the 8 BraVa
     /// trees (3 views, 512²) centreline recall and precision rose on every tree and the radius
@@ -147,6 +156,19 @@ impl OutputConfig {
         self.centreline_const_mm_arrival.filter(|_| arrival_checked && views == 2).unwrap_or(two_views)
     }
 
+    /// The ridge weight of the centreline's paths for a run of `views` views
+    /// (`centreline_ridge_weight`, `centreline_ridge_weight_arrival`).
+    pub fn centreline_ridge_weight_for(&self, views: usize, arrival_checked: bool) -> f64 {
+        self.centreline_ridge_weight_arrival
+            .filter(|_| arrival_checked && views == 2)
+            .unwrap_or(self.centreline_ridge_weight)
+    }
+
+    /// Whether some run's centreline follows the density's ridges.
+    pub fn centreline_follows_ridges(&self) -> bool {
+        self.centreline_ridge_weight > 0.0 || self.centreline_ridge_weight_arrival.is_some_and(|w| w > 0.0)
+    }
+
     /// The bead-joining fraction for a run of `views` views (`centreline_bridge_fraction`,
     /// `centreline_bridge_fraction_two_views`).
     pub fn centreline_bridge_fraction_for(&self, views: usize) -> f64 {
@@ -179,6 +201,8 @@ impl Default for OutputConfig {
             centreline_const_mm_two_views: None,
             centreline_const_mm_arrival: None,
             centreline_min_branch_mm: 1.0,
+            centreline_ridge_weight: 0.0,
+            centreline_ridge_weight_arrival: None,
             centreline_centring: true,
             centreline_voxel_mm: 0.0,
             centreline_bridge_fraction: 0.0,

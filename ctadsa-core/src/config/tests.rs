@@ -74,6 +74,23 @@ fn two_view_runs_trace_the_centreline_with_their_own_settings() {
 }
 
 #[test]
+fn arrival_checked_runs_follow_the_ridges_with_their_own_weight() {
+    let plain = OutputConfig::default();
+    assert!(!plain.centreline_follows_ridges(), "off by default");
+    assert_eq!(plain.centreline_ridge_weight_for(2, true), 0.0);
+    let cfg = Config::load(None, &["output.centreline_ridge_weight_arrival=0.5".into()]).unwrap();
+    let out = &cfg.output;
+    assert!(out.centreline_follows_ridges());
+    assert_eq!(out.centreline_ridge_weight_for(2, true), 0.5);
+    assert_eq!(out.centreline_ridge_weight_for(2, false), 0.0, "no maps: the general weight");
+    assert_eq!(out.centreline_ridge_weight_for(3, true), 0.0, "three views are not checked");
+    for bad in ["output.centreline_ridge_weight=1.5", "output.centreline_ridge_weight_arrival=-0.1"] {
+        let err = Config::load(None, &[bad.into()]).unwrap_err().to_string();
+        assert!(err.contains(bad.split('=').next().unwrap()), "{err}");
+    }
+}
+
+#[test]
 fn two_view_runs_take_their_own_seed_count_and_spacing() {
     let mut init = InitConfig { n2: 10_000, seed_spacing_mm: 0.7, ..InitConfig::default() };
     assert_eq!((init.n2_for(2), init.seed_spacing_mm_for(2)), (10_000, 0.7), "absent: the general values");

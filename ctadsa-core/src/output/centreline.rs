@@ -19,7 +19,7 @@ use crate::data::tree::swc::write_swc;
 use crate::data::tree::vtp::write_vtp;
 use crate::data::tree::{KIND_NEW_VESSEL, KIND_PRIOR_VESSEL, Segment, VesselTree};
 use crate::data::volume::Volume;
-use crate::data::volume::skeleton::{SkeletonParams, skeletonize};
+use crate::data::volume::skeleton::{SkeletonParams, skeletonize_along};
 use crate::error::Result;
 use crate::eval::centreline_metrics::{CentrelineMatch, CentrelineScores, score_centreline};
 use crate::output::arrival::arrival_agreement;
@@ -28,6 +28,10 @@ use crate::output::confidence::{
     CONFIDENCE_BINS, ConfidenceBin, bin_of, branch_confidence, confidence_bins, confidence_rgb, node_confidence,
     without_branches, write_branches_csv,
 };
+
+/// The density over its level above which every voxel is as much a ridge as any other: the
+/// axis of a vessel well above the level is found by the medial axis alone.
+pub const RIDGE_CAP: f32 = 2.0;
 
 /// What a run's centreline is and how it scores.
 #[derive(Debug, Clone, Serialize)]
@@ -77,7 +81,7 @@ impl SolidPart<'_> {
     }
 }
 
-/// The centreline ([`skeletonize`]) of the extracted solid, joined with the prior's voxels when
+/// The centreline ([`skeletonize_along`]) of the extracted solid, joined with the prior's voxels when
 /// `prior_kept`. A node's radius is the voxel estimate (boundary distance less half a voxel, at
 /// least half a voxel), raised to its depth in the solid — the larger of its distances to the
 /// surfaces of the parts it lies in (extracted iso-surface, prior mesh) — where that is larger
@@ -91,7 +95,11 @@ impl SolidPart<'_> {
 /// density does not). `bridges` (voxels on the same grid) are traced through as part of the
 /// solid without being part of the extracted one. With `centring`, the nodes in
 /// the extracted solid and outside the prior's voxels are first centred on the extracted
-/// surface ([`centre_nodes`]: at most a voxel, in vessels up to four voxels wide).
+/// surface ([`centre_nodes`]: at most a voxel, in vessels up to four voxels wide). `relative`,
+/// the completion's density over its local level on the solid's grid, gives the paths a ridge
+/// to follow (`params.ridge_weight`): capped at [`RIDGE_CAP`] times the level, the kept prior's
+/// voxels at the cap.
+#[allow(clippy::too_many_arguments)]
 pub fn completed_centreline(
     extracted: SolidPart,
     prior: Option<SolidPart>,
@@ -100,6 +108,7 @@ pub fn completed_centreline(
     centring: bool,
     working_voxel_mm: f64,
     bridges: Option<&Volume<u8>>,
+    relative: Option<&Volume<f32>>,
 ) -> VesselTree {
     let kept_prior = prior.filter(|_| prior_kept);
     let solid = Volume {
@@ -111,7 +120,17 @@ pub fn completed_centreline(
             .collect(),
         ..extracted.voxels.clone()
     };
-    let mut tree = skeletonize(&solid, params);
+    let ridge: Option<Vec<f32>> = relative.filter(|r| r.data.len() == solid.data.len()).map(|r| {
+        r.data
+            .iter()
+            .enumerate()
+            .map(|(i, &d)| {
+                let in_prior = kept_prior.is_some_and(|p| p.voxels.data[i] != 0);
+                if in_prior { 1.0 } else { d.clamp(0.0, RIDGE_CAP) / RIDGE_CAP }
+            })
+            .collect()
+    });
+    let mut tree = skeletonize_along(&solid, ridge.as_deref(), params);
     let h = solid.grid.spacing_mm.iter().copied().fold(f64::INFINITY, f64::min);
     let extracted_index = SurfaceIndex::new(extracted.surface);
     if centring {

@@ -510,6 +510,9 @@ struct TracedSolid<'a> {
     /// With `output.centreline_bridge_fraction` (`…_two_views`): the extracted solid and the
     /// faint voxels between its beads ([`bridged_solid`]).
     bridges: Option<Volume<u8>>,
+    /// With `output.centreline_ridge_weight` (`…_arrival`): the density over the level it was
+    /// cut at, on this grid.
+    relative: Option<Volume<f32>>,
 }
 
 /// The [`TracedSolid`] of a run: on the density volume's grid, or with
@@ -537,11 +540,15 @@ fn traced_solid<'a>(
             bridged_solid(density, above, bridge_fraction * surface.level, voxels(out.centreline_bridge_mm), clear)
         })
     };
+    let relative =
+        |cut: &Volume<f32>, level: f64| out.centreline_follows_ridges().then(|| cut.map(|d| d / level as f32));
     if voxel <= 0.0 || voxel >= volume.grid.spacing_mm[0] {
-        let above_level = completed_solid(surface.field.as_ref().unwrap_or(volume), surface.field_level, None);
+        let cut = surface.field.as_ref().unwrap_or(volume);
+        let above_level = completed_solid(cut, surface.field_level, None);
         let prior_voxels = surface.kept_prior.clone().or_else(|| prior.map(|p| prior_solid(p, volume)));
         let bridges = bridges(volume, &above_level, prior_voxels.as_ref());
-        return Ok(TracedSolid { above_level, surface: None, prior, prior_voxels, bridges });
+        let relative = relative(cut, surface.field_level);
+        return Ok(TracedSolid { above_level, surface: None, prior, prior_voxels, bridges, relative });
     }
     let grid = Grid::covering(trainer.working_box(), voxel)?;
     let density = completion_density_on(density_on(trainer, grid)?, seed_members, member)?;
@@ -556,7 +563,8 @@ fn traced_solid<'a>(
     let above_level = completed_solid(cut, cut_level, None);
     let fine_surface = extract_isosurface(cut, cut_level as f32);
     let bridges = bridges(&density, &above_level, prior_voxels.as_ref());
-    Ok(TracedSolid { above_level, surface: Some(fine_surface), prior, prior_voxels, bridges })
+    let relative = relative(cut, cut_level);
+    Ok(TracedSolid { above_level, surface: Some(fine_surface), prior, prior_voxels, bridges, relative })
 }
 
 /// The centreline of the completed solid ([`TracedSolid`]), written and scored
@@ -596,6 +604,7 @@ fn write_centreline_of(
         const_mm: out.centreline_const_mm_for(views.len(), arrival.is_some()),
         min_branch_mm: out.centreline_min_branch_mm,
         min_component_voxels,
+        ridge_weight: out.centreline_ridge_weight_for(views.len(), arrival.is_some()),
         ..defaults
     };
     let tree = completed_centreline(
@@ -606,6 +615,7 @@ fn write_centreline_of(
         out.centreline_centring,
         working_voxel,
         traced.bridges.as_ref(),
+        traced.relative.as_ref(),
     );
     // The completed volume (inside the extracted surface, islands dropped as in the mesh, and the
     // prior's voxels where it is kept) against the voxels inside the true surface, both on the

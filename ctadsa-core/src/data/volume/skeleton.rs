@@ -5,7 +5,10 @@
 //! 2. a root at the voxel geodesically farthest from the deepest voxel (an end of the tree);
 //! 3. the shortest-path tree from the root over a penalty field that makes paths off the
 //!    medial axis expensive: a step of length `ℓ` into voxel `v` costs
-//!    `ℓ · (1 + PDRF_SCALE · (1 − dbf(v)/max dbf)^8)`;
+//!    `ℓ · (1 + PDRF_SCALE · (1 − a(v))^8)` with `a = dbf(v)/max dbf`; given a ridge field `r`
+//!    (in [0, 1], e.g. a density relative to its level) and `ridge_weight` β,
+//!    `a = (dbf/max dbf)^(1−β) · (r/max r)^β`, so that paths follow the field's ridges where
+//!    the solid merges two of them;
 //! 4. repeatedly, the not yet covered voxel geodesically farthest from the root is joined to the
 //!    skeleton along that tree, and every voxel within `scale · dbf + const_mm` of the new path
 //!    is covered — until nothing is left.
@@ -39,11 +42,14 @@ pub struct SkeletonParams {
     pub min_branch_mm: f64,
     /// Rounds of Laplacian smoothing of the node positions along branches.
     pub smoothing: usize,
+    /// β of the penalty field (module doc): how much the paths follow the ridge field rather
+    /// than the medial axis, in [0, 1]; unused without a ridge field.
+    pub ridge_weight: f64,
 }
 
 impl Default for SkeletonParams {
     fn default() -> Self {
-        Self { scale: 1.5, const_mm: 1.0, min_component_voxels: 8, min_branch_mm: 1.0, smoothing: 2 }
+        Self { scale: 1.5, const_mm: 1.0, min_component_voxels: 8, min_branch_mm: 1.0, smoothing: 2, ridge_weight: 0.0 }
     }
 }
 
@@ -193,8 +199,17 @@ fn argmax(values: &[f64]) -> usize {
 /// traced, ends trimmed back to the medial axis, short spurs removed, smoothed, each component
 /// rooted at its widest end.
 pub fn skeletonize(solid: &Volume<u8>, params: &SkeletonParams) -> VesselTree {
+    skeletonize_along(solid, None, params)
+}
+
+/// [`skeletonize`] with a ridge field: `ridge[g]` in [0, 1] per voxel of `solid`'s grid,
+/// followed by the paths with `params.ridge_weight` (module doc). A field without one value
+/// per voxel of `solid` is not used (debug builds panic).
+pub fn skeletonize_along(solid: &Volume<u8>, ridge: Option<&[f32]>, params: &SkeletonParams) -> VesselTree {
     let min_h = solid.grid.spacing_mm.iter().copied().fold(f64::INFINITY, f64::min);
-    let mut graph = CentrelineGraph::from_tree(&trace(solid, params));
+    debug_assert!(ridge.is_none_or(|r| r.len() == solid.data.len()), "one ridge value per voxel");
+    let ridge = ridge.filter(|r| params.ridge_weight > 0.0 && r.len() == solid.data.len());
+    let mut graph = CentrelineGraph::from_tree(&trace(solid, ridge, params));
     graph.trim_ends(min_h, 0.5 * min_h);
     graph.prune_spurs(params.min_branch_mm);
     graph.smooth(params.smoothing);
@@ -202,7 +217,7 @@ pub fn skeletonize(solid: &Volume<u8>, params: &SkeletonParams) -> VesselTree {
 }
 
 /// The raw TEASAR forest (see the module documentation).
-fn trace(solid: &Volume<u8>, params: &SkeletonParams) -> VesselTree {
+fn trace(solid: &Volume<u8>, ridge: Option<&[f32]>, params: &SkeletonParams) -> VesselTree {
     let grid = solid.grid;
     let walker = Walker::new(grid.dims, grid.spacing_mm);
     let min_h = grid.spacing_mm.iter().copied().fold(f64::INFINITY, f64::min);
@@ -229,16 +244,18 @@ fn trace(solid: &Volume<u8>, params: &SkeletonParams) -> VesselTree {
             continue;
         }
         let comp = Component { voxels, local: &local, label: &label, id: id as u32 };
-        trace_component(&comp, &walker, &dbf_all, params, min_h, solid, &mut tree);
+        trace_component(&comp, &walker, &dbf_all, ridge, params, min_h, solid, &mut tree);
     }
     tree
 }
 
 /// TEASAR on one component; appends its nodes to `tree`.
+#[allow(clippy::too_many_arguments)]
 fn trace_component(
     comp: &Component,
     walker: &Walker,
     dbf_all: &[f64],
+    ridge: Option<&[f32]>,
     params: &SkeletonParams,
     min_h: f64,
     solid: &Volume<u8>,
@@ -251,7 +268,16 @@ fn trace_component(
     let (from_deepest, _) = dijkstra(walker, comp, argmax(&dbf), &unit);
     let root = argmax(&from_deepest);
     let (daf, _) = dijkstra(walker, comp, root, &unit);
-    let penalty: Vec<f64> = dbf.iter().map(|&d| 1.0 + PDRF_SCALE * (1.0 - d / max_dbf).max(0.0).powi(8)).collect();
+    let mut axis: Vec<f64> = dbf.iter().map(|&d| d / max_dbf).collect();
+    if let Some(ridge) = ridge {
+        let r: Vec<f64> = comp.voxels.iter().map(|&g| f64::from(ridge[g]).clamp(0.0, 1.0)).collect();
+        let max_r = r.iter().copied().fold(0.0, f64::max).max(1e-12);
+        let beta = params.ridge_weight.clamp(0.0, 1.0);
+        for (a, r) in axis.iter_mut().zip(r) {
+            *a = a.powf(1.0 - beta) * (r / max_r).powf(beta);
+        }
+    }
+    let penalty: Vec<f64> = axis.iter().map(|&a| 1.0 + PDRF_SCALE * (1.0 - a).max(0.0).powi(8)).collect();
     let (_, parent) = dijkstra(walker, comp, root, &penalty);
 
     let mut order: Vec<usize> = (0..n).collect();
@@ -413,6 +439,46 @@ mod tests {
         assert!((tree.total_length_mm() - truth).abs() < 4.0, "{} vs {truth}", tree.total_length_mm());
         let worst = tree.nodes.iter().map(|n| axis_distance(&y, n.position_mm)).fold(0.0, f64::max);
         assert!(worst < 0.6, "a node {worst} mm off the axes");
+    }
+
+    /// A narrow bright vessel merged with a wider faint one 1.2 mm away into one solid: the
+    /// medial axis runs along the wider one, the path along the bright one's ridge once it
+    /// follows the ridge field.
+    #[test]
+    fn a_ridge_field_pulls_the_path_of_a_merged_pair_onto_the_brighter_vessel() {
+        let bright = seg(DVec3::ZERO, DVec3::new(40.0, 0.0, 0.0), 0.7);
+        let faint = seg(DVec3::new(0.0, 1.2, 0.0), DVec3::new(40.0, 1.2, 0.0), 1.0);
+        let solid = solid_of(&[bright, faint], 0.2);
+        let ridge: Vec<f32> = (0..solid.data.len())
+            .map(|g| {
+                let [_, ny, nz] = solid.grid.dims;
+                let p = solid.grid.centre_mm(g / (ny * nz), (g / nz) % ny, g % nz);
+                let glow =
+                    |s: &Segment, peak: f64| peak * (-axis_distance(&[*s], p).powi(2) / (2.0 * 0.4f64.powi(2))).exp();
+                glow(&bright, 1.0).max(glow(&faint, 0.4)) as f32
+            })
+            .collect();
+        // Mean distance (mm) to the bright vessel's axis of the nodes along the pair's middle.
+        let off_bright = |tree: &VesselTree| {
+            let mid: Vec<f64> = tree
+                .nodes
+                .iter()
+                .filter(|n| (8.0..32.0).contains(&n.position_mm.x))
+                .map(|n| axis_distance(&[bright], n.position_mm))
+                .collect();
+            assert!(!mid.is_empty(), "a path along the pair");
+            mid.iter().sum::<f64>() / mid.len() as f64
+        };
+        let medial = skeletonize(&solid, &SkeletonParams::default());
+        let along =
+            skeletonize_along(&solid, Some(&ridge), &SkeletonParams { ridge_weight: 1.0, ..Default::default() });
+        let (medial_off, along_off) = (off_bright(&medial), off_bright(&along));
+        assert!(medial_off > 0.8, "the medial axis runs along the wider one: {medial_off} mm off the bright one");
+        // (voxel centres lie 0.14 mm off the axis at best)
+        assert!(along_off < 0.4, "the ridge path runs on the bright one: {along_off} mm off");
+        // Without a weight the field changes nothing.
+        let unweighted = skeletonize_along(&solid, Some(&ridge), &SkeletonParams::default());
+        assert_eq!(unweighted.nodes.len(), medial.nodes.len());
     }
 
     #[test]
