@@ -120,7 +120,8 @@ pub fn completed_centreline(
             .collect(),
         ..extracted.voxels.clone()
     };
-    let ridge: Option<Vec<f32>> = relative.filter(|r| r.data.len() == solid.data.len()).map(|r| {
+    let followed = relative.filter(|r| params.ridge_weight > 0.0 && r.data.len() == solid.data.len());
+    let ridge: Option<Vec<f32>> = followed.map(|r| {
         r.data
             .iter()
             .enumerate()
