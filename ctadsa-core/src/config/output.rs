@@ -95,6 +95,11 @@ pub struct OutputConfig {
     /// trees (3 views, 512²) centreline recall and precision rose on every tree and the radius
     /// error fell from 0.096 to 0.081 mm (docs/RESULTS.md, "The centreline graph").
     pub centreline_centring: bool,
+    /// Where a run's paths follow the density's ridges (its ridge weight > 0), centre the nodes
+    /// on the ridge across their branch (`output::centring::centre_on_ridge`) rather than on
+    /// the surface's chord: where the level merges a vessel with a fainter neighbour the
+    /// chord's middle lies between the two (docs/RESULTS.md, "Paths along the ridges").
+    pub centreline_ridge_centring: bool,
     /// Voxel (mm) of the grid the centreline is traced on; 0 = the density volume's. A finer
     /// grid keeps vessels thinner than the working voxel whole: the completion's density is
     /// voxelised again at this size, cut at the same iso-level, and skeletonised (the surface,
@@ -204,6 +209,7 @@ impl Default for OutputConfig {
             centreline_ridge_weight: 0.0,
             centreline_ridge_weight_arrival: None,
             centreline_centring: true,
+            centreline_ridge_centring: true,
             centreline_voxel_mm: 0.0,
             centreline_bridge_fraction: 0.0,
             centreline_bridge_fraction_two_views: None,

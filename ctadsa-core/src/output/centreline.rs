@@ -23,7 +23,7 @@ use crate::data::volume::skeleton::{SkeletonParams, skeletonize_along};
 use crate::error::Result;
 use crate::eval::centreline_metrics::{CentrelineMatch, CentrelineScores, score_centreline};
 use crate::output::arrival::arrival_agreement;
-use crate::output::centring::centre_nodes;
+use crate::output::centring::{Centring, centre_nodes, centre_on_ridge};
 use crate::output::confidence::{
     CONFIDENCE_BINS, ConfidenceBin, bin_of, branch_confidence, confidence_bins, confidence_rgb, node_confidence,
     without_branches, write_branches_csv,
@@ -32,6 +32,9 @@ use crate::output::confidence::{
 /// The density over its level above which every voxel is as much a ridge as any other: the
 /// axis of a vessel well above the level is found by the medial axis alone.
 pub const RIDGE_CAP: f32 = 2.0;
+
+/// How far (voxels of the traced grid) [`Centring::Ridge`] may move a node.
+pub const RIDGE_SHIFT_VOXELS: f64 = 1.5;
 
 /// What a run's centreline is and how it scores.
 #[derive(Debug, Clone, Serialize)]
@@ -93,19 +96,20 @@ impl SolidPart<'_> {
 /// the prior's margin is that voxel and no radius is below half of it (a finer grid traces
 /// thin vessels whole; it does not make a vessel near the prior new, nor resolve radii the
 /// density does not). `bridges` (voxels on the same grid) are traced through as part of the
-/// solid without being part of the extracted one. With `centring`, the nodes in
-/// the extracted solid and outside the prior's voxels are first centred on the extracted
-/// surface ([`centre_nodes`]: at most a voxel, in vessels up to four voxels wide). `relative`,
-/// the completion's density over its local level on the solid's grid, gives the paths a ridge
-/// to follow (`params.ridge_weight`): capped at [`RIDGE_CAP`] times the level, the kept prior's
-/// voxels at the cap.
+/// solid without being part of the extracted one. `relative`, the completion's density over
+/// its local level on the solid's grid, gives the paths a ridge to follow
+/// (`params.ridge_weight`): capped at [`RIDGE_CAP`] times the level, the kept prior's voxels at
+/// the cap. The nodes in the extracted solid and outside the prior's voxels are then centred
+/// (`centring`): on the extracted surface ([`centre_nodes`]: at most a voxel, in vessels up to
+/// four voxels wide) or, where the paths follow the ridges, on the ridge of `relative`
+/// ([`centre_on_ridge`]: at most [`RIDGE_SHIFT_VOXELS`]).
 #[allow(clippy::too_many_arguments)]
 pub fn completed_centreline(
     extracted: SolidPart,
     prior: Option<SolidPart>,
     prior_kept: bool,
     params: &SkeletonParams,
-    centring: bool,
+    centring: Centring,
     working_voxel_mm: f64,
     bridges: Option<&Volume<u8>>,
     relative: Option<&Volume<f32>>,
@@ -134,10 +138,15 @@ pub fn completed_centreline(
     let mut tree = skeletonize_along(&solid, ridge.as_deref(), params);
     let h = solid.grid.spacing_mm.iter().copied().fold(f64::INFINITY, f64::min);
     let extracted_index = SurfaceIndex::new(extracted.surface);
-    if centring {
-        // Nodes of the extracted solid outside the prior's voxels, in vessels up to 4 voxels wide.
-        let outside_prior = |p: DVec3| prior.is_none_or(|part| !part.voxels.is_set_at(p));
-        centre_nodes(&mut tree, &extracted_index, |p| extracted.voxels.is_set_at(p) && outside_prior(p), h, 4.0 * h);
+    let movable = |p: DVec3| {
+        // Nodes of the extracted solid outside the prior's voxels.
+        extracted.voxels.is_set_at(p) && prior.is_none_or(|part| !part.voxels.is_set_at(p))
+    };
+    match (centring, followed) {
+        (Centring::Off, _) => {}
+        (Centring::Ridge, Some(field)) => centre_on_ridge(&mut tree, field, movable, RIDGE_SHIFT_VOXELS * h),
+        // In vessels up to 4 voxels wide.
+        (Centring::Surface | Centring::Ridge, _) => centre_nodes(&mut tree, &extracted_index, movable, h, 4.0 * h),
     }
     let prior_index = prior.map(|p| (p, SurfaceIndex::new(p.surface)));
     let depths: Vec<(f64, f64, f64)> = tree

@@ -2,13 +2,27 @@
 //! centres, up to half a voxel diagonal off a thin vessel's axis; the extracted iso-surface is
 //! finer than the grid. Each node moves, across its branch (perpendicular to the local tangent),
 //! to the middle of the surface's chord through it along the direction of its nearest wall: for
-//! a round vessel that line passes through the axis, so one step centres the node.
+//! a round vessel that line passes through the axis, so one step centres the node. Or, given the
+//! density, each node moves onto the density's ridge across its branch ([`centre_on_ridge`]).
 
 use glam::DVec3;
 use rayon::prelude::*;
 
 use crate::data::mesh::distance::SurfaceIndex;
 use crate::data::tree::VesselTree;
+use crate::data::volume::Volume;
+
+/// Where a centreline's nodes are moved to, across their branch.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Centring {
+    /// They stay on the voxel centres the skeleton ran through.
+    Off,
+    /// The middle of the surface's chord ([`centre_nodes`]).
+    Surface,
+    /// The density's ridge ([`centre_on_ridge`]); where there is no density to follow, as
+    /// [`Centring::Surface`].
+    Ridge,
+}
 
 /// Two steps: the second corrects what an oval cross-section leaves of the first.
 const STEPS: usize = 2;
@@ -87,6 +101,93 @@ pub fn centre_nodes(
     }
 }
 
+/// The value of `field` at `p` (mm), trilinear between voxel centres; 0 outside the grid.
+fn sample(field: &Volume<f32>, p: DVec3) -> f64 {
+    let g = &field.grid;
+    let f = [0, 1, 2].map(|a| (p[a] - g.origin_mm[a]) / g.spacing_mm[a] - 0.5);
+    let base = f.map(f64::floor);
+    let mut sum = 0.0;
+    for corner in 0..8 {
+        let mut w = 1.0;
+        let mut ijk = [0usize; 3];
+        for a in 0..3 {
+            let up = (corner >> a) & 1 == 1;
+            let i = base[a] as i64 + i64::from(up);
+            if i < 0 || i >= g.dims[a] as i64 {
+                return 0.0;
+            }
+            ijk[a] = i as usize;
+            let t = f[a] - base[a];
+            w *= if up { t } else { 1.0 - t };
+        }
+        sum += w * f64::from(field.get(ijk[0], ijk[1], ijk[2]));
+    }
+    sum
+}
+
+/// Moves the nodes for which `movable` holds onto the ridge of `field` (a density) across their
+/// branch: a Newton step on the quadratic through `field`'s values at the node and one voxel
+/// either way along two directions perpendicular to the tangent, twice, each node by at most
+/// `max_shift_mm` in all. Where the field has no maximum across the branch (not negative
+/// definite there) the node stays. Where the surface merges a thin vessel with a fainter
+/// neighbour, its middle lies between the two and the ridge on the vessel.
+pub fn centre_on_ridge(
+    tree: &mut VesselTree,
+    field: &Volume<f32>,
+    movable: impl Fn(DVec3) -> bool + Sync,
+    max_shift_mm: f64,
+) {
+    let mut children = vec![Vec::new(); tree.nodes.len()];
+    for (i, n) in tree.nodes.iter().enumerate() {
+        if let Some(p) = n.parent {
+            children[p].push(i);
+        }
+    }
+    let tangents: Vec<Option<DVec3>> = (0..tree.nodes.len()).map(|i| tangent(tree, &children, i)).collect();
+    let h = field.grid.spacing_mm.iter().copied().fold(f64::INFINITY, f64::min);
+    let moved: Vec<DVec3> = tree
+        .nodes
+        .par_iter()
+        .zip(&tangents)
+        .map(|(n, t)| {
+            let start = n.position_mm;
+            let Some(t) = *t else { return start };
+            if !movable(start) {
+                return start;
+            }
+            let e1 = t.any_orthonormal_vector();
+            let e2 = t.cross(e1);
+            let mut p = start;
+            for _ in 0..STEPS {
+                let at = |a: f64, b: f64| sample(field, p + h * (a * e1 + b * e2));
+                let c = at(0.0, 0.0);
+                let (xp, xm, yp, ym) = (at(1.0, 0.0), at(-1.0, 0.0), at(0.0, 1.0), at(0.0, -1.0));
+                let (gx, gy) = (0.5 * (xp - xm), 0.5 * (yp - ym));
+                let (hxx, hyy) = (xp - 2.0 * c + xm, yp - 2.0 * c + ym);
+                let hxy = 0.25 * (at(1.0, 1.0) - at(1.0, -1.0) - at(-1.0, 1.0) + at(-1.0, -1.0));
+                let det = hxx * hyy - hxy * hxy;
+                if !(hxx < 0.0 && det > 0.0) {
+                    break;
+                }
+                // s = -H^-1 g, in voxels.
+                let sx = -(hyy * gx - hxy * gy) / det;
+                let sy = -(-hxy * gx + hxx * gy) / det;
+                let candidate = p + h * (sx * e1 + sy * e2);
+                let shift = candidate - start;
+                p = if shift.length() > max_shift_mm {
+                    start + shift * (max_shift_mm / shift.length())
+                } else {
+                    candidate
+                };
+            }
+            p
+        })
+        .collect();
+    for (n, p) in tree.nodes.iter_mut().zip(moved) {
+        n.position_mm = p;
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -144,5 +245,71 @@ mod tests {
         let frozen: Vec<DVec3> = fixed.nodes.iter().map(|n| n.position_mm).collect();
         centre_nodes(&mut fixed, &index, |_| false, 0.6, 3.0);
         assert!(fixed.nodes.iter().zip(&frozen).all(|(n, p)| n.position_mm == *p));
+    }
+
+    /// A thin bright vessel beside a wider faint one 1.2 mm away: nodes on the pair's middle
+    /// move onto the bright vessel's axis (the density's ridge), by at most the shift allowed;
+    /// a node that may not move stays, and a field with no ridge across the branch moves nothing.
+    #[test]
+    fn nodes_move_onto_the_ridge_of_the_density_across_their_branch() {
+        let grid = Grid::covering(&BoxMm { min_mm: [-6.0; 3], max_mm: [6.0; 3] }, 0.42).unwrap();
+        let bright = DVec3::new(0.0, 0.13, -0.07);
+        let field_of = |f: &dyn Fn(DVec3) -> f64| {
+            let mut v = Volume::<f32>::zeros(grid);
+            for i in 0..grid.dims[0] {
+                for j in 0..grid.dims[1] {
+                    for k in 0..grid.dims[2] {
+                        let idx = grid.index(i, j, k);
+                        v.data[idx] = f(grid.centre_mm(i, j, k)) as f32;
+                    }
+                }
+            }
+            v
+        };
+        let across = |p: DVec3, c: DVec3| (p - c) * DVec3::new(0.0, 1.0, 1.0);
+        let glow = |p: DVec3, c: DVec3, peak: f64, sigma: f64| {
+            peak * (-across(p, c).length_squared() / (2.0 * sigma * sigma)).exp()
+        };
+        let faint = bright + DVec3::new(0.0, 1.2, 0.0);
+        let pair = field_of(&|p| glow(p, bright, 2.0, 0.35) + glow(p, faint, 0.8, 0.6));
+        let line = |start: DVec3| VesselTree {
+            nodes: (0..15)
+                .map(|i| TreeNode {
+                    id: i as i64,
+                    kind: 4,
+                    position_mm: start + DVec3::new(-3.5 + 0.5 * i as f64, 0.0, 0.0),
+                    radius_mm: 0.3,
+                    parent: (i > 0).then(|| i - 1),
+                })
+                .collect(),
+        };
+        let off = |t: &VesselTree| t.nodes.iter().map(|n| across(n.position_mm, bright).length()).sum::<f64>() / 15.0;
+        let middle = bright + DVec3::new(0.0, 0.35, 0.1);
+        let mut tree = line(middle);
+        let before = off(&tree);
+        centre_on_ridge(&mut tree, &pair, |_| true, 0.42);
+        let after = off(&tree);
+        eprintln!("mean distance to the bright axis: {before:.3} -> {after:.3} mm");
+        assert!(after < 0.1 && before > 0.3, "{before} -> {after}");
+        for (i, n) in tree.nodes.iter().enumerate() {
+            assert!((n.position_mm.x - (-3.5 + 0.5 * i as f64)).abs() < 1e-9, "along the branch nothing moves");
+        }
+        // At most the shift allowed.
+        let mut short = line(middle);
+        centre_on_ridge(&mut short, &pair, |_| true, 0.1);
+        assert!(
+            short
+                .nodes
+                .iter()
+                .all(|n| (n.position_mm - (middle + DVec3::new(n.position_mm.x - middle.x, 0.0, 0.0))).length()
+                    <= 0.1 + 1e-9)
+        );
+        // Frozen nodes, and a field without a ridge (a plane slope), move nothing.
+        let mut frozen = line(middle);
+        centre_on_ridge(&mut frozen, &pair, |_| false, 0.42);
+        assert_eq!(off(&frozen), before);
+        let mut sloped = line(middle);
+        centre_on_ridge(&mut sloped, &field_of(&|p| 1.0 + 0.1 * p.y), |_| true, 0.42);
+        assert_eq!(off(&sloped), before);
     }
 }

@@ -31,6 +31,7 @@ use crate::method::field_health::DensitySpread;
 use crate::method::train::{StepLog, Trainer};
 use crate::method::training_time::TrainingTime;
 use crate::output::centreline::{ArrivalCheck, CentrelineSummary, SolidPart, completed_centreline, write_centreline};
+use crate::output::centring::Centring;
 use crate::output::confidence::{MESH_CONFIDENCE, mesh_without_doubtful, vertex_confidence, write_mesh_confidence};
 use crate::output::extraction::{
     LevelReach, LevelScore, best_level, bridged_solid, completed_solid, density_scale, faint_level_field, join_prior,
@@ -612,7 +613,11 @@ fn write_centreline_of(
         prior_part,
         surface.kept_prior.is_some(),
         &params,
-        out.centreline_centring,
+        match (out.centreline_centring, out.centreline_ridge_centring) {
+            (false, _) => Centring::Off,
+            (true, false) => Centring::Surface,
+            (true, true) => Centring::Ridge,
+        },
         working_voxel,
         traced.bridges.as_ref(),
         traced.relative.as_ref(),
