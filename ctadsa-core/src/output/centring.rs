@@ -51,6 +51,29 @@ pub fn centre_nodes(
     max_shift_mm: f64,
     max_chord_mm: f64,
 ) {
+    move_across(tree, movable, max_shift_mm, |p, t| {
+        let q = surface.closest(p)?;
+        let away = (p - q).try_normalize()?;
+        let across = away - away.dot(t) * t;
+        if across.length() < MIN_ACROSS {
+            return None;
+        }
+        let dir = across.normalize();
+        let ahead = surface.first_hit(p, dir, max_chord_mm)?;
+        let behind = surface.first_hit(p, -dir, max_chord_mm)?;
+        (ahead + behind <= max_chord_mm).then(|| p + 0.5 * (ahead - behind) * dir)
+    });
+}
+
+/// Moves each node of `tree` for which `movable` holds and that has a tangent by [`STEPS`]
+/// steps of `step` (position, unit tangent → the next position, `None`: stay), each node by at
+/// most `max_shift_mm` in all from where it started.
+fn move_across(
+    tree: &mut VesselTree,
+    movable: impl Fn(DVec3) -> bool + Sync,
+    max_shift_mm: f64,
+    step: impl Fn(DVec3, DVec3) -> Option<DVec3> + Sync,
+) {
     let mut children = vec![Vec::new(); tree.nodes.len()];
     for (i, n) in tree.nodes.iter().enumerate() {
         if let Some(p) = n.parent {
@@ -70,22 +93,7 @@ pub fn centre_nodes(
             }
             let mut p = start;
             for _ in 0..STEPS {
-                let Some(q) = surface.closest(p) else { break };
-                let Some(away) = (p - q).try_normalize() else { break };
-                let across = away - away.dot(t) * t;
-                if across.length() < MIN_ACROSS {
-                    break;
-                }
-                let dir = across.normalize();
-                let (Some(ahead), Some(behind)) =
-                    (surface.first_hit(p, dir, max_chord_mm), surface.first_hit(p, -dir, max_chord_mm))
-                else {
-                    break;
-                };
-                if ahead + behind > max_chord_mm {
-                    break;
-                }
-                let candidate = p + 0.5 * (ahead - behind) * dir;
+                let Some(candidate) = step(p, t) else { break };
                 let shift = candidate - start;
                 p = if shift.length() > max_shift_mm {
                     start + shift * (max_shift_mm / shift.length())
@@ -137,55 +145,25 @@ pub fn centre_on_ridge(
     movable: impl Fn(DVec3) -> bool + Sync,
     max_shift_mm: f64,
 ) {
-    let mut children = vec![Vec::new(); tree.nodes.len()];
-    for (i, n) in tree.nodes.iter().enumerate() {
-        if let Some(p) = n.parent {
-            children[p].push(i);
-        }
-    }
-    let tangents: Vec<Option<DVec3>> = (0..tree.nodes.len()).map(|i| tangent(tree, &children, i)).collect();
     let h = field.grid.spacing_mm.iter().copied().fold(f64::INFINITY, f64::min);
-    let moved: Vec<DVec3> = tree
-        .nodes
-        .par_iter()
-        .zip(&tangents)
-        .map(|(n, t)| {
-            let start = n.position_mm;
-            let Some(t) = *t else { return start };
-            if !movable(start) {
-                return start;
-            }
-            let e1 = t.any_orthonormal_vector();
-            let e2 = t.cross(e1);
-            let mut p = start;
-            for _ in 0..STEPS {
-                let at = |a: f64, b: f64| sample(field, p + h * (a * e1 + b * e2));
-                let c = at(0.0, 0.0);
-                let (xp, xm, yp, ym) = (at(1.0, 0.0), at(-1.0, 0.0), at(0.0, 1.0), at(0.0, -1.0));
-                let (gx, gy) = (0.5 * (xp - xm), 0.5 * (yp - ym));
-                let (hxx, hyy) = (xp - 2.0 * c + xm, yp - 2.0 * c + ym);
-                let hxy = 0.25 * (at(1.0, 1.0) - at(1.0, -1.0) - at(-1.0, 1.0) + at(-1.0, -1.0));
-                let det = hxx * hyy - hxy * hxy;
-                if !(hxx < 0.0 && det > 0.0) {
-                    break;
-                }
-                // s = -H^-1 g, in voxels.
-                let sx = -(hyy * gx - hxy * gy) / det;
-                let sy = -(-hxy * gx + hxx * gy) / det;
-                let candidate = p + h * (sx * e1 + sy * e2);
-                let shift = candidate - start;
-                p = if shift.length() > max_shift_mm {
-                    start + shift * (max_shift_mm / shift.length())
-                } else {
-                    candidate
-                };
-            }
-            p
-        })
-        .collect();
-    for (n, p) in tree.nodes.iter_mut().zip(moved) {
-        n.position_mm = p;
-    }
+    move_across(tree, movable, max_shift_mm, |p, t| {
+        let e1 = t.any_orthonormal_vector();
+        let e2 = t.cross(e1);
+        let at = |a: f64, b: f64| sample(field, p + h * (a * e1 + b * e2));
+        let c = at(0.0, 0.0);
+        let (xp, xm, yp, ym) = (at(1.0, 0.0), at(-1.0, 0.0), at(0.0, 1.0), at(0.0, -1.0));
+        let (gx, gy) = (0.5 * (xp - xm), 0.5 * (yp - ym));
+        let (hxx, hyy) = (xp - 2.0 * c + xm, yp - 2.0 * c + ym);
+        let hxy = 0.25 * (at(1.0, 1.0) - at(1.0, -1.0) - at(-1.0, 1.0) + at(-1.0, -1.0));
+        let det = hxx * hyy - hxy * hxy;
+        if !(hxx < 0.0 && det > 0.0) {
+            return None;
+        }
+        // The Newton step -H⁻¹ g, in voxels.
+        let sx = -(hyy * gx - hxy * gy) / det;
+        let sy = -(-hxy * gx + hxx * gy) / det;
+        Some(p + h * (sx * e1 + sy * e2))
+    });
 }
 
 #[cfg(test)]
