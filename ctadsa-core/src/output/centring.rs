@@ -109,30 +109,6 @@ fn move_across(
     }
 }
 
-/// The value of `field` at `p` (mm), trilinear between voxel centres; 0 outside the grid.
-fn sample(field: &Volume<f32>, p: DVec3) -> f64 {
-    let g = &field.grid;
-    let f = [0, 1, 2].map(|a| (p[a] - g.origin_mm[a]) / g.spacing_mm[a] - 0.5);
-    let base = f.map(f64::floor);
-    let mut sum = 0.0;
-    for corner in 0..8 {
-        let mut w = 1.0;
-        let mut ijk = [0usize; 3];
-        for a in 0..3 {
-            let up = (corner >> a) & 1 == 1;
-            let i = base[a] as i64 + i64::from(up);
-            if i < 0 || i >= g.dims[a] as i64 {
-                return 0.0;
-            }
-            ijk[a] = i as usize;
-            let t = f[a] - base[a];
-            w *= if up { t } else { 1.0 - t };
-        }
-        sum += w * f64::from(field.get(ijk[0], ijk[1], ijk[2]));
-    }
-    sum
-}
-
 /// Moves the nodes for which `movable` holds onto the ridge of `field` (a density) across their
 /// branch: a Newton step on the quadratic through `field`'s values at the node and one voxel
 /// either way along two directions perpendicular to the tangent, twice, each node by at most
@@ -149,7 +125,7 @@ pub fn centre_on_ridge(
     move_across(tree, movable, max_shift_mm, |p, t| {
         let e1 = t.any_orthonormal_vector();
         let e2 = t.cross(e1);
-        let at = |a: f64, b: f64| sample(field, p + h * (a * e1 + b * e2));
+        let at = |a: f64, b: f64| field.trilinear_at(p + h * (a * e1 + b * e2));
         let c = at(0.0, 0.0);
         let (xp, xm, yp, ym) = (at(1.0, 0.0), at(-1.0, 0.0), at(0.0, 1.0), at(0.0, -1.0));
         let (gx, gy) = (0.5 * (xp - xm), 0.5 * (yp - ym));
