@@ -87,8 +87,14 @@ pub struct OutputConfig {
     /// medial axis runs between the two; the density's ridge runs along one of them
     /// ([`crate::data::volume::skeleton`]).
     pub centreline_ridge_weight: f64,
+    /// `centreline_ridge_weight` for runs of two views or fewer (absent: the same), leaving
+    /// three-view runs as they are. On two-view runs without arrival maps (8 BraVa trees, two
+    /// seed pairs) 0.5 finds 0.9 points more of the missing centreline for 0.0–0.3 points of
+    /// precision (docs/RESULTS.md, "Nodes centred on the ridge"); no shipped configuration sets it.
+    pub centreline_ridge_weight_two_views: Option<f64>,
     /// `centreline_ridge_weight` for two-view runs whose new branches are checked against the
-    /// case's arrival maps (as `centreline_const_mm_arrival`; absent: the same).
+    /// case's arrival maps (as `centreline_const_mm_arrival`; absent:
+    /// `centreline_ridge_weight_two_views`).
     pub centreline_ridge_weight_arrival: Option<f64>,
     /// Centre the new vessels' centreline nodes on the extracted surface (sub-voxel:
     /// `output::centring`) before their radii are measured. On by default: on the 8 BraVa
@@ -162,16 +168,22 @@ impl OutputConfig {
     }
 
     /// The ridge weight of the centreline's paths for a run of `views` views
-    /// (`centreline_ridge_weight`, `centreline_ridge_weight_arrival`).
+    /// (`centreline_ridge_weight`, `centreline_ridge_weight_two_views`;
+    /// `centreline_ridge_weight_arrival` when `arrival_checked`, as
+    /// [`Self::centreline_const_mm_for`]).
     pub fn centreline_ridge_weight_for(&self, views: usize, arrival_checked: bool) -> f64 {
-        self.centreline_ridge_weight_arrival
-            .filter(|_| arrival_checked && views == 2)
-            .unwrap_or(self.centreline_ridge_weight)
+        let two_views =
+            self.centreline_ridge_weight_two_views.filter(|_| views <= 2).unwrap_or(self.centreline_ridge_weight);
+        self.centreline_ridge_weight_arrival.filter(|_| arrival_checked && views == 2).unwrap_or(two_views)
     }
 
     /// Whether some run's centreline follows the density's ridges.
     pub fn centreline_follows_ridges(&self) -> bool {
-        self.centreline_ridge_weight > 0.0 || self.centreline_ridge_weight_arrival.is_some_and(|w| w > 0.0)
+        [self.centreline_ridge_weight_two_views, self.centreline_ridge_weight_arrival]
+            .into_iter()
+            .flatten()
+            .chain([self.centreline_ridge_weight])
+            .any(|w| w > 0.0)
     }
 
     /// The bead-joining fraction for a run of `views` views (`centreline_bridge_fraction`,
@@ -207,6 +219,7 @@ impl Default for OutputConfig {
             centreline_const_mm_arrival: None,
             centreline_min_branch_mm: 1.0,
             centreline_ridge_weight: 0.0,
+            centreline_ridge_weight_two_views: None,
             centreline_ridge_weight_arrival: None,
             centreline_centring: true,
             centreline_ridge_centring: true,

@@ -74,7 +74,7 @@ fn two_view_runs_trace_the_centreline_with_their_own_settings() {
 }
 
 #[test]
-fn arrival_checked_runs_follow_the_ridges_with_their_own_weight() {
+fn two_view_and_arrival_checked_runs_follow_the_ridges_with_their_own_weights() {
     let plain = OutputConfig::default();
     assert!(!plain.centreline_follows_ridges(), "off by default");
     assert_eq!(plain.centreline_ridge_weight_for(2, true), 0.0);
@@ -84,7 +84,23 @@ fn arrival_checked_runs_follow_the_ridges_with_their_own_weight() {
     assert_eq!(out.centreline_ridge_weight_for(2, true), 0.5);
     assert_eq!(out.centreline_ridge_weight_for(2, false), 0.0, "no maps: the general weight");
     assert_eq!(out.centreline_ridge_weight_for(3, true), 0.0, "three views are not checked");
-    for bad in ["output.centreline_ridge_weight=1.5", "output.centreline_ridge_weight_arrival=-0.1"] {
+    // Two-view runs without maps take the two-view weight; with maps the arrival weight wins.
+    let cfg = Config::load(None, &["output.centreline_ridge_weight_two_views=0.25".into()]).unwrap();
+    let out = &cfg.output;
+    assert!(out.centreline_follows_ridges());
+    assert_eq!(out.centreline_ridge_weight_for(2, false), 0.25);
+    assert_eq!(out.centreline_ridge_weight_for(1, false), 0.25, "one view counts as two or fewer");
+    assert_eq!(out.centreline_ridge_weight_for(2, true), 0.25, "no arrival weight: the two-view one");
+    assert_eq!(out.centreline_ridge_weight_for(3, false), 0.0, "three views: the general weight");
+    let both =
+        ["output.centreline_ridge_weight_two_views=0.25".into(), "output.centreline_ridge_weight_arrival=0.5".into()];
+    let out = Config::load(None, &both).unwrap().output;
+    assert_eq!((out.centreline_ridge_weight_for(2, true), out.centreline_ridge_weight_for(2, false)), (0.5, 0.25));
+    for bad in [
+        "output.centreline_ridge_weight=1.5",
+        "output.centreline_ridge_weight_two_views=2",
+        "output.centreline_ridge_weight_arrival=-0.1",
+    ] {
         let err = Config::load(None, &[bad.into()]).unwrap_err().to_string();
         assert!(err.contains(bad.split('=').next().unwrap()), "{err}");
     }

@@ -276,6 +276,7 @@ impl Config {
         check((0.0..=10.0).contains(&self.output.centreline_scale), "output.centreline_scale", "must be in [0, 10]")?;
         for (v, k) in [
             (self.output.centreline_ridge_weight, "output.centreline_ridge_weight"),
+            (self.output.centreline_ridge_weight_two_views.unwrap_or(0.0), "output.centreline_ridge_weight_two_views"),
             (self.output.centreline_ridge_weight_arrival.unwrap_or(0.0), "output.centreline_ridge_weight_arrival"),
         ] {
             check((0.0..=1.0).contains(&v), k, "must be in [0, 1]")?;
