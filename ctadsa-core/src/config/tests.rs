@@ -78,24 +78,23 @@ fn two_view_and_arrival_checked_runs_follow_the_ridges_with_their_own_weights() 
     let plain = OutputConfig::default();
     assert!(!plain.centreline_follows_ridges(), "off by default");
     assert_eq!(plain.centreline_ridge_weight_for(2, true), 0.0);
-    let cfg = Config::load(None, &["output.centreline_ridge_weight_arrival=0.5".into()]).unwrap();
-    let out = &cfg.output;
-    assert!(out.centreline_follows_ridges());
-    assert_eq!(out.centreline_ridge_weight_for(2, true), 0.5);
-    assert_eq!(out.centreline_ridge_weight_for(2, false), 0.0, "no maps: the general weight");
-    assert_eq!(out.centreline_ridge_weight_for(3, true), 0.0, "three views are not checked");
-    // Two-view runs without maps take the two-view weight; with maps the arrival weight wins.
-    let cfg = Config::load(None, &["output.centreline_ridge_weight_two_views=0.25".into()]).unwrap();
-    let out = &cfg.output;
-    assert!(out.centreline_follows_ridges());
-    assert_eq!(out.centreline_ridge_weight_for(2, false), 0.25);
-    assert_eq!(out.centreline_ridge_weight_for(1, false), 0.25, "one view counts as two or fewer");
-    assert_eq!(out.centreline_ridge_weight_for(2, true), 0.25, "no arrival weight: the two-view one");
-    assert_eq!(out.centreline_ridge_weight_for(3, false), 0.0, "three views: the general weight");
-    let both =
-        ["output.centreline_ridge_weight_two_views=0.25".into(), "output.centreline_ridge_weight_arrival=0.5".into()];
-    let out = Config::load(None, &both).unwrap().output;
-    assert_eq!((out.centreline_ridge_weight_for(2, true), out.centreline_ridge_weight_for(2, false)), (0.5, 0.25));
+    let output =
+        |sets: &[&str]| Config::load(None, &sets.iter().map(|s| s.to_string()).collect::<Vec<_>>()).unwrap().output;
+    let arrival = "output.centreline_ridge_weight_arrival=0.5";
+    let two_views = "output.centreline_ridge_weight_two_views=0.25";
+    // (views, arrival-checked) -> weight: the arrival weight for checked two-view runs, then
+    // the two-view weight for runs of two views or fewer, then the general one (0 here).
+    for (sets, expected) in [
+        (vec![arrival], [0.5, 0.0, 0.0, 0.0]),
+        (vec![two_views], [0.25, 0.25, 0.25, 0.0]),
+        (vec![two_views, arrival], [0.5, 0.25, 0.25, 0.0]),
+    ] {
+        let out = output(&sets);
+        assert!(out.centreline_follows_ridges(), "{sets:?}");
+        let weights =
+            [(2, true), (2, false), (1, false), (3, true)].map(|(v, a)| out.centreline_ridge_weight_for(v, a));
+        assert_eq!(weights, expected, "{sets:?}: 2 views checked, 2 unchecked, 1, 3 views");
+    }
     for bad in [
         "output.centreline_ridge_weight=1.5",
         "output.centreline_ridge_weight_two_views=2",
