@@ -90,7 +90,8 @@ pub struct OutputConfig {
     /// `centreline_ridge_weight` for runs of two views or fewer (absent: the same), leaving
     /// three-view runs as they are. On two-view runs without arrival maps (8 BraVa trees, two
     /// seed pairs) 0.5 finds 0.9 points more of the missing centreline for 0.0–0.3 points of
-    /// precision (docs/RESULTS.md, "Nodes centred on the ridge"); no shipped configuration sets it.
+    /// precision, and with `centreline_const_mm_two_views` 2.0 → 2.1 mm more of both
+    /// (docs/RESULTS.md, "Nodes centred on the ridge").
     pub centreline_ridge_weight_two_views: Option<f64>,
     /// `centreline_ridge_weight` for two-view runs whose new branches are checked against the
     /// case's arrival maps (as `centreline_const_mm_arrival`; absent:
