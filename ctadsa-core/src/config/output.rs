@@ -180,11 +180,10 @@ impl OutputConfig {
 
     /// Whether some run's centreline follows the density's ridges.
     pub fn centreline_follows_ridges(&self) -> bool {
-        [self.centreline_ridge_weight_two_views, self.centreline_ridge_weight_arrival]
-            .into_iter()
-            .flatten()
-            .chain([self.centreline_ridge_weight])
-            .any(|w| w > 0.0)
+        let positive = |w: Option<f64>| w.is_some_and(|w| w > 0.0);
+        self.centreline_ridge_weight > 0.0
+            || positive(self.centreline_ridge_weight_two_views)
+            || positive(self.centreline_ridge_weight_arrival)
     }
 
     /// The bead-joining fraction for a run of `views` views (`centreline_bridge_fraction`,
