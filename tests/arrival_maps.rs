@@ -24,7 +24,7 @@ const QUICK_TOML: &str = include_str!(concat!(env!("CARGO_MANIFEST_DIR"), "/conf
 fn arrival_case(name: &str) -> Case {
     let dir = scratch(name);
     let mut synth = SynthConfig::small_procedural("arrival");
-    synth.arrival = Some(ArrivalSpec { frames_per_s: 7.5, flow_mm_s: 300.0 });
+    synth.arrival = Some(ArrivalSpec::ideal(7.5, 300.0));
     synthesize(&synth, &dir, &mut |_| {}).expect("synthesis");
     Case::load(&dir).expect("case loads")
 }

@@ -98,6 +98,21 @@ pub struct SynthArgs {
     /// With --arrival-fps: the contrast's velocity along the vessels (mm/s).
     #[arg(long, default_value_t = 300.0, requires = "arrival_fps")]
     flow_mm_s: f64,
+    /// With --arrival-fps: how much the velocity differs between vessels, each segment's
+    /// --flow-mm-s × e^(σ N(0,1)) with σ this (0: one velocity everywhere).
+    #[arg(long, default_value_t = 0.0, requires = "arrival_fps")]
+    arrival_velocity_spread: f64,
+    /// With --arrival-fps: error of each pixel's detected frame, N(0, σ²) frames with σ this,
+    /// rounded (0: exact).
+    #[arg(long, default_value_t = 0.0, requires = "arrival_fps")]
+    arrival_frame_noise: f64,
+    /// With --arrival-fps: the lateral plane's frames this many frames after the frontal's (a
+    /// biplane system images its planes alternately: 0.5); 0: at the same instants.
+    #[arg(long, default_value_t = 0.0, requires = "arrival_fps")]
+    arrival_interleave: f64,
+    /// With --arrival-fps: seed of the velocities' and the frame errors' draws.
+    #[arg(long, default_value_t = 0, requires = "arrival_fps")]
+    arrival_seed: u64,
     /// Replace a case already in the output folder: its case.json, views, priors, ground truth,
     /// pictures and PROVENANCE.md go first (other files stay).
     #[arg(long)]
@@ -142,7 +157,13 @@ pub fn config_from(args: &SynthArgs, anatomy: Anatomy, name: String) -> Result<S
             rotation_deg: args.pose_error_deg,
             seed: args.seed,
         }),
-        arrival: args.arrival_fps.map(|frames_per_s| ArrivalSpec { frames_per_s, flow_mm_s: args.flow_mm_s }),
+        arrival: args.arrival_fps.map(|frames_per_s| ArrivalSpec {
+            velocity_spread: args.arrival_velocity_spread,
+            frame_noise: args.arrival_frame_noise,
+            interleave_frames: args.arrival_interleave,
+            seed: args.arrival_seed,
+            ..ArrivalSpec::ideal(frames_per_s, args.flow_mm_s)
+        }),
     })
 }
 
@@ -240,9 +261,19 @@ pub fn run(args: SynthArgs) -> Result<()> {
             summary.dir.display()
         ));
         if let Some(a) = &cfg.arrival {
+            let mut real = String::new();
+            if a.velocity_spread > 0.0 {
+                real += &format!(", velocity spread σ {}", a.velocity_spread);
+            }
+            if a.frame_noise > 0.0 {
+                real += &format!(", frame error σ {} frames", a.frame_noise);
+            }
+            if a.interleave_frames > 0.0 {
+                real += &format!(", lateral frames {} frame late", a.interleave_frames);
+            }
             pb.suspend(|| {
                 println!(
-                    "{name}: arrival maps of a run at {} frames/s, contrast at {} mm/s (views/<view>-arrival.tiff)",
+                    "{name}: arrival maps of a run at {} frames/s, contrast at {} mm/s{real} (views/<view>-arrival.tiff)",
                     a.frames_per_s, a.flow_mm_s
                 )
             });

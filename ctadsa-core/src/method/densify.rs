@@ -15,6 +15,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use crate::config::DensifyConfig;
+use crate::data::projector::noise::standard_normal;
 use crate::data::volume::BoxMm;
 use crate::error::Result;
 use crate::method::model::{GaussianInit, GaussianModel, ScaleBounds, tensor2};
@@ -78,14 +79,6 @@ pub struct DensifyPlan {
     pub pruned: usize,
 }
 
-/// Standard normal sample (Box–Muller).
-fn normal(rng: &mut ChaCha8Rng) -> f64 {
-    use rand::RngExt;
-    let u1: f64 = rng.random_range(f64::MIN_POSITIVE..1.0);
-    let u2: f64 = rng.random();
-    (-2.0f64 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
-}
-
 /// Decides clones, splits and prunes from host copies of the parameters.
 #[allow(clippy::too_many_arguments)]
 pub fn plan(
@@ -141,9 +134,9 @@ pub fn plan(
             let rot = DQuat::from_xyzw(q[1] as f64, q[2] as f64, q[3] as f64, q[0] as f64).normalize();
             for _ in 0..2 {
                 let local = DVec3::new(
-                    normal(&mut rng) * s[0] as f64,
-                    normal(&mut rng) * s[1] as f64,
-                    normal(&mut rng) * s[2] as f64,
+                    standard_normal(&mut rng) * s[0] as f64,
+                    standard_normal(&mut rng) * s[1] as f64,
+                    standard_normal(&mut rng) * s[2] as f64,
                 );
                 let p = m + rot * local;
                 out.added.means.extend([p.x as f32, p.y as f32, p.z as f32]);

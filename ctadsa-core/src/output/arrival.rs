@@ -90,7 +90,7 @@ mod tests {
                 node(4, Some(2), [20.0, 20.0, -20.0], 0),
             ],
         };
-        let spec = ArrivalSpec { frames_per_s: 10.0, flow_mm_s: 100.0 };
+        let spec = ArrivalSpec::ideal(10.0, 100.0);
         let views: Vec<ConeBeamView> = [-90.0, 0.0]
             .map(|primary| {
                 let mut g = TigreGeometry::reference(primary);
@@ -99,7 +99,7 @@ mod tests {
                 ConeBeamView::from_tigre(&g).unwrap()
             })
             .into();
-        let maps: Vec<Image> = views.iter().map(|v| arrival_map(&truth, v, &spec)).collect();
+        let maps: Vec<Image> = views.iter().enumerate().map(|(i, v)| arrival_map(&truth, v, i, &spec)).collect();
         let found = VesselTree {
             nodes: vec![
                 node(1, None, [0.0, 0.0, -15.0], KIND_NEW_VESSEL),

@@ -23,8 +23,8 @@ pub struct NoiseModel {
     pub seed: u64,
 }
 
-fn standard_normal(rng: &mut ChaCha8Rng) -> f64 {
-    // Box–Muller.
+/// A standard normal draw (Box–Muller).
+pub(crate) fn standard_normal(rng: &mut ChaCha8Rng) -> f64 {
     let u1: f64 = rng.random_range(f64::MIN_POSITIVE..1.0);
     let u2: f64 = rng.random();
     (-2.0f64 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()

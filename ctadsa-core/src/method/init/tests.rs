@@ -178,8 +178,8 @@ fn tracks_start_where_both_views_fill_at_once() {
             node(4, Some(2), leaving.1),
         ],
     };
-    let spec = ArrivalSpec { frames_per_s: 10.0, flow_mm_s: 50.0 };
-    let maps: Vec<Image> = views.iter().map(|v| arrival_map(&tree, v, &spec)).collect();
+    let spec = ArrivalSpec::ideal(10.0, 50.0);
+    let maps: Vec<Image> = views.iter().enumerate().map(|(i, v)| arrival_map(&tree, v, i, &spec)).collect();
     let mut shifted = maps.clone();
     shifted[1].data.iter_mut().filter(|f| **f >= 0.0).for_each(|f| *f += 5.0);
     let cfg = InitConfig { arrival_track_starts: true, ..tracks_only() };
@@ -262,8 +262,8 @@ pub(crate) fn opposite_fills() -> (Vec<ConeBeamView>, Vec<Image>, Vec<Image>, Bo
     let tree = VesselTree {
         nodes: vec![node(1, None, a.0), node(2, Some(0), a.1), node(3, None, b.0), node(4, Some(2), b.1)],
     };
-    let spec = ArrivalSpec { frames_per_s: 10.0, flow_mm_s: 50.0 };
-    let maps: Vec<Image> = views.iter().map(|v| arrival_map(&tree, v, &spec)).collect();
+    let spec = ArrivalSpec::ideal(10.0, 50.0);
+    let maps: Vec<Image> = views.iter().enumerate().map(|(i, v)| arrival_map(&tree, v, i, &spec)).collect();
     (views, images, maps, bounds)
 }
 
