@@ -128,6 +128,9 @@ fn out_of_range_flags_are_refused_naming_the_flag() {
         ("--noise-sigma=-1", "", "noise sigma"),
         ("--views", "angles:1e300", "angle"),
         ("--views", "angles:0,0", "twice"),
+        ("--arrival-fps=7.5", "--arrival-frame-noise=-1", "frame noise"),
+        ("--arrival-fps=7.5", "--arrival-velocity-spread=inf", "velocity spread"),
+        ("--arrival-fps=7.5", "--arrival-interleave=2", "interleave"),
     ] {
         let mut args = base.to_vec();
         args.extend([flag, value].into_iter().filter(|a| !a.is_empty()));
