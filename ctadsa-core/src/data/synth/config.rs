@@ -70,7 +70,7 @@ pub struct SynthConfig {
     /// this much, while the case records the nominal pose (the truth goes to ground truth).
     #[serde(default)]
     pub pose_error: Option<PoseErrorSpec>,
-    /// A time-resolved run: each view also gets an arrival map ([`arrival::arrival_map`]; trees
+    /// A time-resolved run: each view also gets an arrival map ([`super::arrival::arrival_map`]; trees
     /// only).
     #[serde(default)]
     pub arrival: Option<ArrivalSpec>,
