@@ -29,7 +29,7 @@ pub struct ArrivalSpec {
     pub flow_mm_s: f64,
     /// How much the velocity differs between vessels: each segment's is `flow_mm_s` ×
     /// e^(σ N(0,1)) with σ this (0: one velocity everywhere; 0.3 puts two thirds of the
-    /// segments within ±35 %).
+    /// segments between 0.74 and 1.35 × `flow_mm_s`).
     #[serde(default, skip_serializing_if = "is_zero")]
     pub velocity_spread: f64,
     /// Error of each pixel's detected frame: N(0, σ²) frames with σ this, rounded, never
