@@ -303,6 +303,8 @@ fn malformed_case_files_are_refused_and_nothing_escapes() {
         edited_case(&dir, "escape-view", |j| j["views"][0]["name"] = "../v".into()),
         edited_case(&dir, "absolute-view", |j| j["views"][1]["name"] = "/tmp/v".into()),
         edited_case(&dir, "negative-png-scale", |j| j["views"][0]["png_scale"] = (-1.0).into()),
+        edited_case(&dir, "negative-arrival-offset", |j| j["views"][1]["arrival_offset_frames"] = (-0.5).into()),
+        edited_case(&dir, "huge-arrival-offset", |j| j["views"][1]["arrival_offset_frames"] = 1e30.into()),
         edited_case(&dir, "tiny-voxel", |j| j["volume"]["voxel_mm"] = 1e-6.into()),
         edited_case(&dir, "huge-box", |j| j["volume"]["max_mm"] = serde_json::json!([1e300, 1e300, 1e300])),
         edited_case(&dir, "wrong-version", |j| j["version"] = 99.into()),

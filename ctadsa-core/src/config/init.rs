@@ -166,7 +166,8 @@ pub struct InitConfig {
     /// Two views and the case's arrival maps: the re-seeds of training (`densify.reseed_at`)
     /// only where both views fill at once, as `arrival_seeds` for the image seeds.
     pub arrival_reseeds: bool,
-    /// Frames by which the two views' arrivals at an image seed may differ and still agree.
+    /// Frames by which the two views' arrivals may lie apart and still agree
+    /// ([`crate::method::arrival::frames_agree`]; 0: the spans their frames stand for overlap).
     pub arrival_tolerance_frames: f64,
     /// Where the prior's projection covers a point's 3 × 3 pixels in a view, that view cannot
     /// tell the point's arrival (the prior, filling first, shows its own frame there): the seed

@@ -137,7 +137,8 @@ pub struct OutputConfig {
     /// the length fills in the same frame in both views are left out of the written and scored
     /// centreline, as ghosts ([`crate::output::arrival`]); 0 keeps them.
     pub arrival_min_agreement: f64,
-    /// Frames by which the two views' arrivals may differ and still agree.
+    /// Frames by which the two views' arrivals may lie apart and still agree
+    /// ([`crate::method::arrival::frames_agree`]; 0: the spans their frames stand for overlap).
     pub arrival_tolerance_frames: f64,
     /// With `arrival_min_agreement`: the branches are checked on maps that hide the prior's
     /// projection, a view the prior hides at a point judged by the frames filled within this

@@ -14,6 +14,11 @@ pub struct RunConfig {
     pub checkpoint_every: usize,
     /// Detector binning applied to the case's images and views (1 = native).
     pub image_binning: u32,
+    /// The arrival maps' frames read through a median ([`crate::data::case::images::median_arrival`]):
+    /// each filled pixel takes the median frame of the filled pixels within this many pixels
+    /// (of the case's images, before `image_binning`). A real run's detected frames are off by a
+    /// frame here and there; 0: the maps as they are.
+    pub arrival_median_px: u32,
     /// Use only these views of the case (indices; empty = all).
     pub views: Vec<usize>,
     /// Where the working box comes from.
@@ -80,6 +85,7 @@ impl Default for RunConfig {
             views_per_step: 1,
             checkpoint_every: 5000,
             image_binning: 1,
+            arrival_median_px: 0,
             views: vec![],
             working_box: WorkingBoxSource::Inputs,
             prior_only_member: false,

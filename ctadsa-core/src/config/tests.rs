@@ -9,10 +9,12 @@ fn unknown_keys_and_bad_values_name_the_key() {
     let err = Config::load(None, &["init.n2_mode=\"sideways\"".into()]).unwrap_err().to_string();
     assert!(err.contains("sideways") || err.contains("n2_mode"), "{err}");
     // The arrival checks' windows are bounded (a huge one would scan the whole image per point).
-    for key in ["init.arrival_prior_exit_px", "output.arrival_prior_exit_px"] {
+    for (key, good) in
+        [("init.arrival_prior_exit_px", 6), ("output.arrival_prior_exit_px", 6), ("run.arrival_median_px", 1)]
+    {
         let err = Config::load(None, &[format!("{key}=100000")]).unwrap_err().to_string();
         assert!(err.contains(key), "{err}");
-        assert!(Config::load(None, &[format!("{key}=6")]).is_ok());
+        assert!(Config::load(None, &[format!("{key}={good}")]).is_ok());
     }
     // The tracking settings of runs whose claims the arrival maps check are bounded as the
     // settings they replace.

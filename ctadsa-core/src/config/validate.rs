@@ -13,6 +13,7 @@ impl Config {
     pub fn validate(&self) -> Result<()> {
         check(self.run.iterations >= 1, "run.iterations", "must be ≥ 1")?;
         check(self.run.image_binning >= 1, "run.image_binning", "must be ≥ 1")?;
+        check(self.run.arrival_median_px <= 5, "run.arrival_median_px", "must be in [0, 5]")?;
         let views = &self.run.views;
         check(
             views.len() <= MAX_VIEWS,

@@ -12,7 +12,7 @@ use glam::DVec3;
 
 use crate::config::Config;
 use crate::data::case::Case;
-use crate::data::case::images::{Image, NO_ARRIVAL, bin_arrival};
+use crate::data::case::images::{Image, NO_ARRIVAL, bin_arrival, median_arrival};
 use crate::data::masks::{prior_solid, silhouettes};
 use crate::data::volume::Grid;
 use crate::error::Result;
@@ -21,12 +21,33 @@ use crate::error::Result;
 /// `init.arrival_prior_unknown` says the prior hides what fills behind it.
 pub const HIDDEN_BY_PRIOR: f32 = -2.0;
 
-/// The arrival maps of a run's views (its `run.views`, binned by `run.image_binning`: a binned
-/// pixel keeps the earliest frame of its block), when the case has one for every view.
+/// The arrival maps of a run's views (its `run.views`), when the case has one for every view:
+/// read through `run.arrival_median_px`'s median ([`median_arrival`]), binned by
+/// `run.image_binning` (a binned pixel keeps the earliest frame of its block), and each filled
+/// pixel's frame f turned into the time it stands for, f + the view's
+/// [`ViewEntry::arrival_offset_frames`](crate::data::case::ViewEntry::arrival_offset_frames)
+/// (frames of the run's clock: the contrast came between that and one frame later).
 pub fn run_arrival_maps(case: &Case, cfg: &Config) -> Result<Option<Vec<Image>>> {
     let case = run_case(case, cfg)?;
     let Some(maps) = case.arrival_maps()? else { return Ok(None) };
-    Ok(Some(maps.iter().map(|m| bin_arrival(m, cfg.run.image_binning.max(1))).collect()))
+    let binning = cfg.run.image_binning.max(1);
+    let timed = maps.iter().zip(&case.file.views).map(|(map, entry)| {
+        arrival_times(
+            &bin_arrival(&median_arrival(map, cfg.run.arrival_median_px), binning),
+            entry.arrival_offset_frames,
+        )
+    });
+    Ok(Some(timed.collect()))
+}
+
+/// An arrival map's frames as the times (frames of the run's clock) they stand for: each filled
+/// pixel's frame plus `offset_frames`, how late the view's frames were taken
+/// ([`ViewEntry::arrival_offset_frames`](crate::data::case::ViewEntry::arrival_offset_frames));
+/// unfilled pixels stay as they are.
+pub fn arrival_times(map: &Image, offset_frames: f64) -> Image {
+    let mut map = map.clone();
+    map.data.iter_mut().filter(|f| **f >= 0.0).for_each(|f| *f += offset_frames as f32);
+    map
 }
 
 /// The case with only the run's views (`run.views`; all when empty).
@@ -89,15 +110,20 @@ fn hidden(frames: &[f32]) -> bool {
 }
 
 /// Whether some filled pixel of `first` and some of `second` filled within `tolerance_frames`
-/// of each other; a side whose pixels are all [`HIDDEN_BY_PRIOR`] or unfilled, at least one
-/// hidden, cannot tell, and agrees with any side that has a filled or hidden pixel.
+/// of each other: a pixel's value t ([`run_arrival_maps`]: its frame plus its view's offset)
+/// says the contrast came between t and t + 1, so two agree when those spans lie less than
+/// `tolerance_frames` apart, |t − s| < 1 + `tolerance_frames` (whole frames of views imaged at
+/// the same instants: the same frame at tolerance 0). A side whose pixels are all
+/// [`HIDDEN_BY_PRIOR`] or unfilled, at least one hidden, cannot tell, and agrees with any side
+/// that has a filled or hidden pixel.
 pub fn frames_agree(first: &[f32], second: &[f32], tolerance_frames: f32) -> bool {
     let filled = |f: &&f32| **f >= 0.0;
     let seen = |s: &[f32]| s.iter().any(|&f| f >= 0.0 || f == HIDDEN_BY_PRIOR);
     if (hidden(first) && seen(second)) || (hidden(second) && seen(first)) {
         return true;
     }
-    first.iter().filter(filled).any(|f| second.iter().filter(filled).any(|g| (f - g).abs() <= tolerance_frames))
+    let within = 1.0 + tolerance_frames;
+    first.iter().filter(filled).any(|f| second.iter().filter(filled).any(|g| (f - g).abs() < within))
 }
 
 /// The frames a view shows for a point ([`frames_seen`]).

@@ -80,8 +80,9 @@ mod tests {
     /// z = −20 mm, B at x = y = 20 mm from its root at z = +20 mm. AP (along y) sees A at x = 0,
     /// LAT (along x) sees B at y = 20, so the vertical ghost at (0, 20) lies under A in AP and
     /// under B in LAT: its two frames differ, while a stretch of A has A's frames in both views.
-    #[test]
-    fn a_vessel_agrees_and_a_ghost_between_two_vessels_does_not() {
+    /// Returns the truth, the two views, and a found tree of two new branches: the stretch of A
+    /// and the ghost.
+    fn vessel_and_ghost() -> (VesselTree, Vec<ConeBeamView>, VesselTree, [Branch; 2]) {
         let truth = VesselTree {
             nodes: vec![
                 node(1, None, [0.0, 0.0, -20.0], 0),
@@ -90,7 +91,6 @@ mod tests {
                 node(4, Some(2), [20.0, 20.0, -20.0], 0),
             ],
         };
-        let spec = ArrivalSpec::ideal(10.0, 100.0);
         let views: Vec<ConeBeamView> = [-90.0, 0.0]
             .map(|primary| {
                 let mut g = TigreGeometry::reference(primary);
@@ -99,7 +99,6 @@ mod tests {
                 ConeBeamView::from_tigre(&g).unwrap()
             })
             .into();
-        let maps: Vec<Image> = views.iter().enumerate().map(|(i, v)| arrival_map(&truth, v, i, &spec)).collect();
         let found = VesselTree {
             nodes: vec![
                 node(1, None, [0.0, 0.0, -15.0], KIND_NEW_VESSEL),
@@ -108,7 +107,14 @@ mod tests {
                 node(4, Some(2), [0.0, 20.0, -5.0], KIND_NEW_VESSEL),
             ],
         };
-        let branches = [new_branch(vec![0, 1]), new_branch(vec![2, 3])];
+        (truth, views, found, [new_branch(vec![0, 1]), new_branch(vec![2, 3])])
+    }
+
+    #[test]
+    fn a_vessel_agrees_and_a_ghost_between_two_vessels_does_not() {
+        let (truth, views, found, branches) = vessel_and_ghost();
+        let spec = ArrivalSpec::ideal(10.0, 100.0);
+        let maps: Vec<Image> = views.iter().enumerate().map(|(i, v)| arrival_map(&truth, v, i, &spec)).collect();
         let agreement = arrival_agreement(&found, &branches, &views, &maps, 0.0, 0);
         assert_eq!(agreement[0], Some(1.0), "the true vessel");
         assert_eq!(agreement[1], Some(0.0), "the ghost");
@@ -120,5 +126,28 @@ mod tests {
         assert_eq!(bin_arrival(&map, 2).data, vec![2.0]);
         let empty = Image { width: 2, height: 2, data: vec![NO_ARRIVAL; 4] };
         assert_eq!(bin_arrival(&empty, 2).data, vec![NO_ARRIVAL]);
+    }
+
+    /// A biplane run images its planes alternately: with the lateral plane's frames half a frame
+    /// late, the true vessel shows the same frame or the one before in LAT, and an exact frame
+    /// test rejects part of it; read as the times its frames stand for (its offset known), the
+    /// vessel agrees whole and the ghost mostly does not.
+    #[test]
+    fn a_plane_imaged_half_a_frame_late_agrees_once_its_offset_is_known() {
+        use crate::method::arrival::arrival_times;
+        let (truth, views, found, branches) = vessel_and_ghost();
+        let spec = ArrivalSpec { interleave_frames: 0.5, ..ArrivalSpec::ideal(10.0, 100.0) };
+        let frames: Vec<Image> = views.iter().enumerate().map(|(i, v)| arrival_map(&truth, v, i, &spec)).collect();
+        let exact = arrival_agreement(&found, &branches, &views, &frames, 0.0, 0);
+        let vessel_exact = exact[0].unwrap();
+        assert!(vessel_exact < 0.9, "an exact frame test passes {vessel_exact:.2} of the true vessel");
+        let times: Vec<Image> =
+            frames.iter().enumerate().map(|(i, m)| arrival_times(m, spec.delay_frames(i))).collect();
+        let timed = arrival_agreement(&found, &branches, &views, &times, 0.0, 0);
+        assert_eq!(timed[0], Some(1.0), "the true vessel, its offset known");
+        // The span a frame stands for is wider than the frame: where the ghost's two frames are
+        // one apart, the spans touch the half frame and it agrees there.
+        let ghost = timed[1].unwrap();
+        assert!(ghost <= 0.25, "the ghost, its offset known, agrees over {ghost:.2}");
     }
 }

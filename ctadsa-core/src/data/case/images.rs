@@ -178,6 +178,38 @@ pub fn bin_arrival(map: &Image, b: u32) -> Image {
     Image { width: w, height: h, data }
 }
 
+/// An arrival map read robustly: each filled pixel takes the median frame of the filled pixels
+/// within `half_px` pixels of it (a square; of an even count, the earlier of the two middle
+/// frames), so a frame detected a frame off among its neighbours' gives way to theirs; pixels
+/// no vessel fills stay [`NO_ARRIVAL`], and no pixel gets filled. `half_px` 0: the map as it is.
+pub fn median_arrival(map: &Image, half_px: u32) -> Image {
+    if half_px == 0 {
+        return map.clone();
+    }
+    let (w, h, r) = (map.width as i64, map.height as i64, half_px as i64);
+    let mut window = Vec::with_capacity(((2 * r + 1) * (2 * r + 1)) as usize);
+    let mut data = map.data.clone();
+    for row in 0..h {
+        for col in 0..w {
+            if map.data[(row * w + col) as usize] < 0.0 {
+                continue;
+            }
+            window.clear();
+            for rr in (row - r).max(0)..(row + r + 1).min(h) {
+                for cc in (col - r).max(0)..(col + r + 1).min(w) {
+                    let f = map.data[(rr * w + cc) as usize];
+                    if f >= 0.0 {
+                        window.push(f);
+                    }
+                }
+            }
+            window.sort_by(f32::total_cmp);
+            data[(row * w + col) as usize] = window[(window.len() - 1) / 2];
+        }
+    }
+    Image { width: map.width, height: map.height, data }
+}
+
 /// Average-pools an image by `b × b` (line integrals keep their units).
 pub fn bin_image(img: &Image, b: u32) -> Image {
     if b <= 1 {
@@ -221,5 +253,32 @@ mod tests {
         let err = read_image(&dir.join("nan.tiff"), None).unwrap_err().to_string();
         assert!(err.contains("nan.tiff") && err.contains("column 1"), "{err}");
         std::fs::remove_dir_all(dir).ok();
+    }
+
+    /// The median keeps a vessel's frame where one pixel of it was detected a frame off, never
+    /// fills a pixel no vessel fills, and leaves a map of one frame per vessel as it is.
+    #[test]
+    fn median_arrival_outvotes_a_lone_frame_and_fills_nothing() {
+        let n = NO_ARRIVAL;
+        // A vessel 2 px wide along the rows, frame 4, one pixel of it detected as 5; a second
+        // vessel, frame 9, one row below it.
+        #[rustfmt::skip]
+        let data = vec![
+            4.0, 4.0, 4.0, 4.0, 4.0, 4.0,
+            4.0, 4.0, 5.0, 4.0, 4.0, 4.0,
+            n,   n,   n,   n,   n,   n,
+            9.0, 9.0, 9.0, 9.0, 9.0, 9.0,
+        ];
+        let map = Image { width: 6, height: 4, data };
+        assert_eq!(median_arrival(&map, 0), map);
+        let median = median_arrival(&map, 1);
+        assert_eq!(median.data[8], 4.0, "the lone 5 goes");
+        for (i, (&m, &f)) in median.data.iter().zip(&map.data).enumerate() {
+            if f == n {
+                assert_eq!(m, n, "pixel {i} gets filled");
+            } else if i != 8 {
+                assert_eq!(m, f, "pixel {i} of a one-frame vessel moves");
+            }
+        }
     }
 }

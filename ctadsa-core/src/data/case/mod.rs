@@ -145,6 +145,9 @@ impl ViewGeometry {
     }
 }
 
+/// Largest [`ViewEntry::arrival_offset_frames`] a case may give.
+pub const MAX_ARRIVAL_OFFSET_FRAMES: f64 = 1000.0;
+
 /// One view of the case.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -165,6 +168,16 @@ pub struct ViewEntry {
     /// image's size, relative to the case folder ([`Case::arrival_maps`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub arrival: Option<String>,
+    /// How late (frames) this view's frames were taken after the run's clock: frame f of
+    /// `arrival` says the contrast came between f + this and f + 1 + this frames. A biplane
+    /// system images its planes alternately, the lateral plane's frames half a frame after the
+    /// frontal's (0.5); 0 (the default): every view at the same instants.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub arrival_offset_frames: f64,
+}
+
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
 }
 
 /// The prior (what a CTA segmentation shows).
@@ -314,6 +327,16 @@ impl CaseFile {
                 return Err(CoreError::format(
                     path,
                     format!("view `{}`: `png_scale` must be a positive number, got {s}", v.name),
+                ));
+            }
+            let offset = v.arrival_offset_frames;
+            if !(offset.is_finite() && (0.0..=MAX_ARRIVAL_OFFSET_FRAMES).contains(&offset)) {
+                return Err(CoreError::format(
+                    path,
+                    format!(
+                        "view `{}`: `arrival_offset_frames` must be in [0, {MAX_ARRIVAL_OFFSET_FRAMES}], got {offset}",
+                        v.name
+                    ),
                 ));
             }
         }

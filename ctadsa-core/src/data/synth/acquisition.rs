@@ -31,8 +31,9 @@ pub(super) struct Acquisition {
     pub(super) warnings: Vec<String>,
     /// The views as imaged (pose errors applied).
     pub(super) imaged: Vec<ConeBeamView>,
-    /// Per view, the arrival map of a time-resolved run ([`SynthConfig::arrival`]).
-    pub(super) arrivals: Option<Vec<Image>>,
+    /// Per view, the arrival map of a time-resolved run ([`SynthConfig::arrival`]) and how late
+    /// (frames) the view's frames are ([`ViewEntry::arrival_offset_frames`]).
+    pub(super) arrivals: Option<Vec<(Image, f64)>>,
 }
 
 pub(super) fn acquire(cfg: &SynthConfig, complete: &Volume<f32>) -> Result<Acquisition> {
@@ -129,13 +130,13 @@ pub(super) fn write_views(
     let mut strip: Vec<Image> = Vec::new();
     for (i, ((name, geom), data)) in acq.names.iter().zip(&acq.geometries).zip(acq.images).enumerate() {
         let img = Image { width: geom.detector_px[0], height: geom.detector_px[1], data };
-        let arrival = match acq.arrivals.as_ref().map(|maps| &maps[i]) {
-            Some(map) => {
+        let (arrival, arrival_offset_frames) = match acq.arrivals.as_ref().map(|maps| &maps[i]) {
+            Some((map, offset)) => {
                 let relative = format!("views/{name}-arrival.tiff");
                 write_tiff_f32(&out.join(&relative), map)?;
-                Some(relative)
+                (Some(relative), *offset)
             }
-            None => None,
+            None => (None, 0.0),
         };
         write_tiff_f32(&out.join(format!("views/{name}.tiff")), &img)?;
         let scale = write_png16(&out.join(format!("views/{name}.png")), &img)?;
@@ -147,6 +148,7 @@ pub(super) fn write_views(
             preview_png: Some(format!("views/{name}.png")),
             geometry: ViewGeometry::from_tigre(geom),
             arrival,
+            arrival_offset_frames,
         });
         strip.push(img);
     }

@@ -85,6 +85,12 @@ impl ArrivalSpec {
         Ok(())
     }
 
+    /// How late (frames) the `index`-th view's frames are: `interleave_frames` for every second
+    /// view, 0 for the others ([`crate::data::case::ViewEntry::arrival_offset_frames`]).
+    pub fn delay_frames(&self, index: usize) -> f64 {
+        if index % 2 == 1 { self.interleave_frames } else { 0.0 }
+    }
+
     /// The frame in which contrast shows that has travelled `path_mm` at `flow_mm_s` (or as long
     /// at the vessels' own velocities: [`ArrivalSpec::slowness`]), in a view whose frames are
     /// `delay_frames` late.
@@ -131,7 +137,7 @@ pub fn arrival_map(tree: &VesselTree, view: &ConeBeamView, index: usize, spec: &
     let mut first = vec![f32::INFINITY; (w * h) as usize];
     let slowness = spec.slowness(tree);
     let length = path_lengths(tree, &slowness);
-    let delay = if index % 2 == 1 { spec.interleave_frames } else { 0.0 };
+    let delay = spec.delay_frames(index);
     let focal_px = view.intrinsics().focal_px[0].abs().max(view.intrinsics().focal_px[1].abs());
     for s in tree.segments() {
         let parent = tree.nodes[s.child].parent.unwrap_or(s.child);

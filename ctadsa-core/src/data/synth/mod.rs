@@ -148,7 +148,13 @@ fn synthesize_into(
     let view_warnings = std::mem::take(&mut acq.warnings);
     if let Some(spec) = &cfg.arrival {
         let tree = r.tree.as_ref().ok_or_else(|| CoreError::invalid("arrival maps need a tree"))?;
-        acq.arrivals = Some(acq.imaged.iter().enumerate().map(|(i, view)| arrival_map(tree, view, i, spec)).collect());
+        acq.arrivals = Some(
+            acq.imaged
+                .iter()
+                .enumerate()
+                .map(|(i, view)| (arrival_map(tree, view, i, spec), spec.delay_frames(i)))
+                .collect(),
+        );
     }
     if replace {
         remove_case(out)?;
