@@ -43,13 +43,21 @@ fn arrival_maps_are_written_read_and_check_new_branches_in_two_views() {
     let dir = tmp("arrival");
     std::fs::create_dir_all(&dir).unwrap();
     let synth = ["synth", "--out", "case", "--terminals", "16", "--detector-px", "96", "--binning", "2"];
-    ok(&dir, &[&synth[..], &["--voxel-mm", "0.6", "--arrival-fps", "7.5"]].concat());
-    let case: serde_json::Value = serde_json::from_slice(&std::fs::read(dir.join("case/case.json")).unwrap()).unwrap();
-    for view in case["views"].as_array().unwrap() {
-        let name = view["name"].as_str().unwrap();
-        assert_eq!(view["arrival"], format!("views/{name}-arrival.tiff"));
-        assert!(dir.join("case").join(view["arrival"].as_str().unwrap()).is_file());
-    }
+    // The planes imaged alternately: the second view's frames half a frame late, which the case
+    // says (`arrival_offset_frames`), and the DICOM runs carry through their Acquisition Times.
+    ok(&dir, &[&synth[..], &["--voxel-mm", "0.6", "--arrival-fps", "7.5", "--arrival-interleave", "0.5"]].concat());
+    let offsets = |case: &str| -> Vec<f64> {
+        let json: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(dir.join(case).join("case.json")).unwrap()).unwrap();
+        let views = json["views"].as_array().unwrap();
+        for view in views {
+            let name = view["name"].as_str().unwrap();
+            assert_eq!(view["arrival"], format!("views/{name}-arrival.tiff"));
+            assert!(dir.join(case).join(view["arrival"].as_str().unwrap()).is_file());
+        }
+        views.iter().map(|v| v["arrival_offset_frames"].as_f64().unwrap_or(0.0)).collect()
+    };
+    assert_eq!(offsets("case"), vec![0.0, 0.5, 0.0]);
     // Two views: every new branch is checked (a share in branches.csv) and the summary counts
     // the branches dropped; three views: none is.
     for (views, checked) in [("[0,1]", true), ("[0,1,2]", false)] {
@@ -134,6 +142,8 @@ fn arrival_maps_are_written_read_and_check_new_branches_in_two_views() {
             "imported",
         ],
     );
+    let imported = offsets("imported");
+    assert!(imported[0] == 0.0 && (imported[1] - 0.5).abs() < 1e-6, "imported arrival offsets {imported:?}");
     for (source, imported) in [("ap", "0-ap"), ("lat", "1-lat")] {
         let read = |p: &str| ctadsa_core::data::case::images::read_image(&dir.join(p), None).unwrap();
         let (a, b) = (

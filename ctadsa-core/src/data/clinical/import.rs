@@ -7,6 +7,7 @@ use ctadsa_render::{ConeBeamView, TigreGeometry};
 use glam::DVec3;
 
 use super::dsa::{Subtraction, average_frames, choose_frames, contrast_curve, max_intensity_projection, subtract};
+use super::timing::{ArrivalClock, arrival_offsets};
 use super::xa::XaRun;
 use crate::data::case::images::{Image, write_png16, write_tiff_f32};
 use crate::data::case::images::{NO_ARRIVAL, bin_arrival, bin_image};
@@ -68,6 +69,9 @@ pub struct DsaView {
     pub notes: Vec<String>,
     /// With [`DsaOptions::arrival`]: per pixel, the frame at which its contrast arrives.
     pub arrival: Option<Image>,
+    /// With [`DsaOptions::arrival`], when the run gives its times: when its arrival frame 0
+    /// was taken and how far apart its frames are.
+    pub arrival_clock: Option<ArrivalClock>,
 }
 
 /// The first frame after the last mask frame (frame 0 of an arrival map).
@@ -273,7 +277,23 @@ pub fn dsa_view(run: &XaRun, name: &str, o: &DsaOptions) -> Result<DsaView> {
         pixel_mm: [g.pixel_mm[0] * b as f64, g.pixel_mm[1] * b as f64],
         ..geometry
     };
-    Ok(DsaView { name: name.to_string(), image, geometry, mask_frames: masks, frames, curve, notes, arrival })
+    let arrival_clock = match (&arrival, run.acquisition_time_s, run.frame_time_ms) {
+        (Some(_), Some(start_s), Some(frame_ms)) => {
+            Some(ArrivalClock { start_s: start_s + first_after_masks(&masks) as f64 * frame_ms / 1000.0, frame_ms })
+        }
+        _ => None,
+    };
+    Ok(DsaView {
+        name: name.to_string(),
+        image,
+        geometry,
+        mask_frames: masks,
+        frames,
+        curve,
+        notes,
+        arrival,
+        arrival_clock,
+    })
 }
 
 /// The case's name for the view of run number `index` read from `path`: the index and the file
@@ -312,7 +332,24 @@ pub fn write_dsa_case(
     let mut entries = Vec::new();
     // Arrival maps for every view or none (a case's are all or nothing).
     let timed = views.iter().all(|v| v.arrival.is_some());
-    for v in views {
+    let offsets = if timed {
+        match arrival_offsets(&views.iter().map(|v| v.arrival_clock).collect::<Vec<_>>()) {
+            Ok(offsets) => {
+                notes.push(format!(
+                    "arrival offsets (frames each run's arrival frame 0 was taken after the earliest's, from \
+                     Acquisition Time and Frame Time): {offsets:?}"
+                ));
+                offsets
+            }
+            Err(why) => {
+                notes.push(format!("arrival offsets taken as 0 (all planes imaged at the same instants): {why}"));
+                vec![0.0; views.len()]
+            }
+        }
+    } else {
+        vec![0.0; views.len()]
+    };
+    for (v, &arrival_offset_frames) in views.iter().zip(&offsets) {
         entries.push(ViewEntry {
             name: v.name.clone(),
             image: format!("views/{}.tiff", v.name),
@@ -321,6 +358,7 @@ pub fn write_dsa_case(
             preview_png: Some(format!("views/{}.png", v.name)),
             geometry: ViewGeometry::from_tigre(&v.geometry),
             arrival: timed.then(|| format!("views/{}-arrival.tiff", v.name)),
+            arrival_offset_frames,
         });
         notes.extend(v.notes.iter().cloned());
     }

@@ -6,4 +6,5 @@ pub mod dsa;
 pub mod import;
 pub mod prior;
 pub mod simulate;
+pub mod timing;
 pub mod xa;

@@ -5,7 +5,7 @@
 use ctadsa_render::TigreGeometry;
 
 use super::import::tigre_angles_from_dicom;
-use super::xa::XaRunSpec;
+use super::xa::{SIMULATED_FRAME_TIME_MS, XaRunSpec};
 use crate::data::case::images::Image;
 use crate::data::case::{Case, ViewGeometry};
 use crate::error::{CoreError, Result};
@@ -102,6 +102,9 @@ pub fn simulated_case_runs(case: &Case, peak_attenuation: f32, mirror_first: boo
         let mut spec = simulated_run(img, &g, peak_attenuation / max, mirror);
         if let Some(maps) = &arrivals {
             spec.frames = simulated_timed_frames(img, &maps[i], frames, peak_attenuation / max, mirror);
+            // Noon, and a plane whose frames were taken late (its arrival offset) that much later.
+            spec.acquisition_time_s =
+                Some(12.0 * 3600.0 + entry.arrival_offset_frames * SIMULATED_FRAME_TIME_MS / 1000.0);
         }
         if mirror {
             spec.patient_orientation = Some(["L".into(), "F".into()]);
@@ -132,5 +135,6 @@ pub fn simulated_run(line_integral: &Image, geometry: &TigreGeometry, kappa: f32
         patient_orientation: None,
         study_key: "simulated".into(),
         series_number: 1,
+        acquisition_time_s: None,
     }
 }

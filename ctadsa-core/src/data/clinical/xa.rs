@@ -39,6 +39,11 @@ pub struct XaRun {
     pub intensity_relationship: Option<String>,
     /// Patient Orientation (0020,0020): the patient directions of the image rows and columns.
     pub patient_orientation: Option<Vec<String>>,
+    /// Frame Time (0018,1063): ms between frames, when given (positive).
+    pub frame_time_ms: Option<f64>,
+    /// Acquisition Time (0008,0032), else Content Time (0008,0033): when the first frame was
+    /// taken, s after midnight ([`super::timing::parse_dicom_time`]), when given.
+    pub acquisition_time_s: Option<f64>,
 }
 
 fn tag_name(tag: Tag) -> String {
@@ -122,6 +127,12 @@ pub fn read_xa_run(path: &Path) -> Result<XaRun> {
         mask_frames,
         intensity_relationship: element_str(&obj, tags::PIXEL_INTENSITY_RELATIONSHIP),
         patient_orientation,
+        // Optional timing: a tag that is not a time is as good as absent (the run still imports;
+        // its arrival offset then cannot be told, which the import says).
+        frame_time_ms: element_f64(&obj, path, tags::FRAME_TIME).ok().flatten().filter(|t| t.is_finite() && *t > 0.0),
+        acquisition_time_s: [tags::ACQUISITION_TIME, tags::CONTENT_TIME]
+            .into_iter()
+            .find_map(|tag| element_str(&obj, tag).as_deref().and_then(super::timing::parse_dicom_time)),
     })
 }
 
@@ -318,6 +329,19 @@ pub struct XaRunSpec {
     pub study_key: String,
     /// Series Number (0020,0011); also the run's part of its UIDs.
     pub series_number: u32,
+    /// Acquisition Time (0008,0032), s after midnight: when the first frame was taken (frames
+    /// are [`SIMULATED_FRAME_TIME_MS`] apart).
+    pub acquisition_time_s: Option<f64>,
+}
+
+/// Frame Time (0018,1063) of the runs [`write_xa_run`] writes: ms between frames.
+pub const SIMULATED_FRAME_TIME_MS: f64 = 100.0;
+
+/// Seconds after midnight as a DICOM time (TM, `HHMMSS.FFFFFF`), within the day.
+fn dicom_time(seconds: f64) -> String {
+    let micros = (seconds.rem_euclid(86_400.0) * 1e6).round() as u64 % 86_400_000_000;
+    let (s, f) = (micros / 1_000_000, micros % 1_000_000);
+    format!("{:02}{:02}{:02}.{f:06}", s / 3600, s / 60 % 60, s % 60)
 }
 
 /// A DICOM UID under the `2.25` root (ISO/IEC 9834-8: a 128-bit number in decimal), derived
@@ -375,7 +399,7 @@ pub fn write_xa_run(path: &Path, spec: &XaRunSpec) -> Result<()> {
         empty(tags::EXPOSURE, VR::IS),
         DataElement::new(tags::POSITIONER_MOTION, VR::CS, "STATIC"),
         // Multi-frame: frames 100 ms apart.
-        DataElement::new(tags::FRAME_TIME, VR::DS, "100"),
+        DataElement::new(tags::FRAME_TIME, VR::DS, ds(SIMULATED_FRAME_TIME_MS)),
         DataElement::new(
             tags::FRAME_INCREMENT_POINTER,
             VR::AT,
@@ -397,6 +421,9 @@ pub fn write_xa_run(path: &Path, spec: &XaRunSpec) -> Result<()> {
             obj.put(DataElement::new(tag, VR::DS, ds(v)));
         }
     };
+    if let Some(t) = spec.acquisition_time_s {
+        obj.put(DataElement::new(tags::ACQUISITION_TIME, VR::TM, dicom_time(t).as_str()));
+    }
     opt(&mut obj, tags::DISTANCE_SOURCE_TO_DETECTOR, spec.dsd_mm);
     opt(&mut obj, tags::DISTANCE_SOURCE_TO_PATIENT, spec.dso_mm);
     opt(&mut obj, tags::POSITIONER_PRIMARY_ANGLE, spec.primary_deg);
