@@ -176,7 +176,8 @@ pub struct ViewEntry {
     pub arrival_offset_frames: f64,
 }
 
-fn is_zero(v: &f64) -> bool {
+/// Serde's `skip_serializing_if` for settings whose default is 0.
+pub(crate) fn is_zero(v: &f64) -> bool {
     *v == 0.0
 }
 

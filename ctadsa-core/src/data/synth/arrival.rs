@@ -30,23 +30,19 @@ pub struct ArrivalSpec {
     /// How much the velocity differs between vessels: each segment's is `flow_mm_s` ×
     /// e^(σ N(0,1)) with σ this (0: one velocity everywhere; 0.3 puts two thirds of the
     /// segments between 0.74 and 1.35 × `flow_mm_s`).
-    #[serde(default, skip_serializing_if = "is_zero")]
+    #[serde(default, skip_serializing_if = "crate::data::case::is_zero")]
     pub velocity_spread: f64,
     /// Error of each pixel's detected frame: N(0, σ²) frames with σ this, rounded, never
     /// before frame 0 (0: exact; 0.5 moves a third of the pixels by a frame or more).
-    #[serde(default, skip_serializing_if = "is_zero")]
+    #[serde(default, skip_serializing_if = "crate::data::case::is_zero")]
     pub frame_noise: f64,
     /// Delay (frames) of every second view's frames: a biplane system images its planes
     /// alternately, the lateral half a frame after the frontal (0.5); 0: at the same instants.
-    #[serde(default, skip_serializing_if = "is_zero")]
+    #[serde(default, skip_serializing_if = "crate::data::case::is_zero")]
     pub interleave_frames: f64,
     /// Seed of the velocities' and the frame errors' draws.
     #[serde(default, skip_serializing_if = "is_zero_seed")]
     pub seed: u64,
-}
-
-fn is_zero(v: &f64) -> bool {
-    *v == 0.0
 }
 
 fn is_zero_seed(v: &u64) -> bool {
