@@ -12,7 +12,9 @@ use ctadsa_core::data::masks::prior_solid;
 use ctadsa_core::data::synth::arrival::ArrivalSpec;
 use ctadsa_core::data::synth::{SynthConfig, synthesize};
 use ctadsa_core::data::volume::Grid;
-use ctadsa_core::method::arrival::{HIDDEN_BY_PRIOR, ghosts_by_arrival, run_arrival_maps, seed_arrival_maps};
+use ctadsa_core::method::arrival::{
+    HIDDEN_BY_PRIOR, ghosts_by_arrival, run_arrival_maps, run_arrival_readings, seed_arrival_maps,
+};
 use ctadsa_core::method::train::Trainer;
 
 mod scratch;
@@ -22,9 +24,14 @@ const QUICK_TOML: &str = include_str!(concat!(env!("CARGO_MANIFEST_DIR"), "/conf
 
 /// The small procedural case with arrival maps (7.5 frames/s, 300 mm/s), written to `name`.
 fn arrival_case(name: &str) -> Case {
+    arrival_case_with(name, ArrivalSpec::ideal(7.5, 300.0))
+}
+
+/// The small procedural case with the arrival maps of `spec`, written to `name`.
+fn arrival_case_with(name: &str, spec: ArrivalSpec) -> Case {
     let dir = scratch(name);
     let mut synth = SynthConfig::small_procedural("arrival");
-    synth.arrival = Some(ArrivalSpec::ideal(7.5, 300.0));
+    synth.arrival = Some(spec);
     synthesize(&synth, &dir, &mut |_| {}).expect("synthesis");
     Case::load(&dir).expect("case loads")
 }
@@ -63,6 +70,40 @@ fn the_prior_projection_hides_arrival_only_when_asked() {
 /// With `densify.arrival_prune` a densification removes exactly the Gaussians off the prior whose
 /// centres fill at two times (the image seeds unchecked, so that there are some); without it
 /// they stay.
+/// A map whose frames were detected a frame off here and there is read through the 1-pixel
+/// median on its own (`run.arrival_noisy_share`); an ideal one as it is; a median set by hand
+/// holds for both, and `run.arrival_noisy_share = 1` turns the choice off.
+#[test]
+fn noisy_arrival_maps_are_read_through_a_median_ideal_ones_as_they_are() {
+    let ideal = arrival_case("arrival-maps-ideal");
+    let noisy = arrival_case_with(
+        "arrival-maps-noisy",
+        ArrivalSpec { frame_noise: 0.5, seed: 1, ..ArrivalSpec::ideal(7.5, 300.0) },
+    );
+    let config = |sets: &[&str]| {
+        let mut sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+        sets.push("run.views=[0,1]".into());
+        Config::from_toml_str(QUICK_TOML, "configs/quick.toml", &sets).unwrap()
+    };
+    let maps = |case: &Case, sets: &[&str]| run_arrival_maps(case, &config(sets)).unwrap().expect("the case has maps");
+    let readings = |case: &Case, sets: &[&str]| run_arrival_readings(case, &config(sets)).unwrap().unwrap();
+
+    let (ideal_read, noisy_read) = (readings(&ideal, &[]), readings(&noisy, &[]));
+    assert_eq!(ideal_read.len(), 2);
+    for (i, n) in ideal_read.iter().zip(&noisy_read) {
+        assert_eq!(i.view, n.view);
+        assert!(i.noise < 0.1 && n.noise > 0.2, "{i:?} {n:?}");
+        assert_eq!((i.median_px, n.median_px), (0, 1), "{i:?} {n:?}");
+    }
+    assert_eq!(maps(&ideal, &[]), maps(&ideal, &["run.arrival_noisy_share=1"]), "an ideal map is read as it is");
+    assert_eq!(maps(&noisy, &[]), maps(&noisy, &["run.arrival_median_px=1"]), "a noisy one through the median");
+    assert_ne!(maps(&noisy, &[]), maps(&noisy, &["run.arrival_noisy_share=1"]));
+    for case in [&ideal, &noisy] {
+        let by_hand = readings(case, &["run.arrival_median_px=2"]);
+        assert!(by_hand.iter().all(|r| r.median_px == 2), "{by_hand:?}");
+    }
+}
+
 #[test]
 fn densification_prunes_the_gaussians_that_arrival_calls_ghosts() {
     let case = arrival_case("arrival-prune-case");

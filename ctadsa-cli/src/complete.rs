@@ -216,6 +216,17 @@ pub fn print_summary(summary: &RunSummary, out: &Path) {
             );
         }
     }
+    for r in summary.arrival_readings.iter().flatten() {
+        let read = match r.median_px {
+            0 => "read as it is".to_string(),
+            px => format!("read through a {0} × {0} median", 2 * px + 1),
+        };
+        println!(
+            "  arrival map of {}: {:.1} % of its filled pixels off their neighbours' median, {read}",
+            r.view,
+            100.0 * r.noise
+        );
+    }
     if let Some(dropped) = summary.centreline.arrival_dropped_branches {
         println!(
             "  arrival check (two views): {dropped} new branches left out, their arrival differing between the views"

@@ -17,8 +17,16 @@ pub struct RunConfig {
     /// The arrival maps' frames read through a median ([`crate::data::case::images::median_arrival`]):
     /// each filled pixel takes the median frame of the filled pixels within this many pixels
     /// (of the case's images, before `image_binning`). A real run's detected frames are off by a
-    /// frame here and there; 0: the maps as they are.
+    /// frame here and there; 0: the maps as they are, unless `arrival_noisy_share` finds a map
+    /// noisy.
     pub arrival_median_px: u32,
+    /// With `arrival_median_px` 0, a map whose [`arrival_noise`](crate::data::case::images::arrival_noise)
+    /// (the share of its filled pixels whose frame differs from their 3 × 3 neighbours' median)
+    /// exceeds this is read through the 1-pixel median. The shared BraVa cases' ideal maps score
+    /// 0.013–0.025 and their maps as a real run's (frames off by one here and there) 0.30–0.32;
+    /// the median makes runs worse on the first and better on the second (docs/RESULTS.md,
+    /// "Arrival maps as a real run's"). 1: never.
+    pub arrival_noisy_share: f64,
     /// Use only these views of the case (indices; empty = all).
     pub views: Vec<usize>,
     /// Where the working box comes from.
@@ -86,6 +94,7 @@ impl Default for RunConfig {
             checkpoint_every: 5000,
             image_binning: 1,
             arrival_median_px: 0,
+            arrival_noisy_share: 0.1,
             views: vec![],
             working_box: WorkingBoxSource::Inputs,
             prior_only_member: false,

@@ -16,6 +16,11 @@ fn unknown_keys_and_bad_values_name_the_key() {
         assert!(err.contains(key), "{err}");
         assert!(Config::load(None, &[format!("{key}={good}")]).is_ok());
     }
+    for bad in ["-0.1", "1.5", "nan"] {
+        let err = Config::load(None, &[format!("run.arrival_noisy_share={bad}")]).unwrap_err().to_string();
+        assert!(err.contains("run.arrival_noisy_share"), "{err}");
+    }
+    assert!(Config::load(None, &["run.arrival_noisy_share=1".into()]).is_ok());
     // The tracking settings of runs whose claims the arrival maps check are bounded as the
     // settings they replace.
     for (key, bad, good) in [("init.track_rounds_arrival", 9, 6), ("init.track_max_points_arrival", 30_000_000, 80_000)]

@@ -14,6 +14,7 @@ impl Config {
         check(self.run.iterations >= 1, "run.iterations", "must be ≥ 1")?;
         check(self.run.image_binning >= 1, "run.image_binning", "must be ≥ 1")?;
         check(self.run.arrival_median_px <= 5, "run.arrival_median_px", "must be in [0, 5]")?;
+        check((0.0..=1.0).contains(&self.run.arrival_noisy_share), "run.arrival_noisy_share", "must be in [0, 1]")?;
         let views = &self.run.views;
         check(
             views.len() <= MAX_VIEWS,

@@ -9,10 +9,11 @@
 
 use ctadsa_render::ConeBeamView;
 use glam::DVec3;
+use serde::Serialize;
 
-use crate::config::Config;
+use crate::config::{Config, RunConfig};
 use crate::data::case::Case;
-use crate::data::case::images::{Image, NO_ARRIVAL, bin_arrival, median_arrival};
+use crate::data::case::images::{Image, NO_ARRIVAL, arrival_noise, bin_arrival, median_arrival};
 use crate::data::masks::{prior_solid, silhouettes};
 use crate::data::volume::Grid;
 use crate::error::Result;
@@ -22,7 +23,7 @@ use crate::error::Result;
 pub const HIDDEN_BY_PRIOR: f32 = -2.0;
 
 /// The arrival maps of a run's views (its `run.views`), when the case has one for every view:
-/// read through `run.arrival_median_px`'s median ([`median_arrival`]), binned by
+/// each read through the median [`arrival_reading`] chooses ([`median_arrival`]), binned by
 /// `run.image_binning` (a binned pixel keeps the earliest frame of its block), and each filled
 /// pixel's frame f turned into the time it stands for, f + the view's
 /// [`ViewEntry::arrival_offset_frames`](crate::data::case::ViewEntry::arrival_offset_frames)
@@ -32,12 +33,41 @@ pub fn run_arrival_maps(case: &Case, cfg: &Config) -> Result<Option<Vec<Image>>>
     let Some(maps) = case.arrival_maps()? else { return Ok(None) };
     let binning = cfg.run.image_binning.max(1);
     let timed = maps.iter().zip(&case.file.views).map(|(map, entry)| {
-        arrival_times(
-            &bin_arrival(&median_arrival(map, cfg.run.arrival_median_px), binning),
-            entry.arrival_offset_frames,
-        )
+        let median_px = arrival_reading(map, &entry.name, &cfg.run).median_px;
+        arrival_times(&bin_arrival(&median_arrival(map, median_px), binning), entry.arrival_offset_frames)
     });
     Ok(Some(timed.collect()))
+}
+
+/// How a run reads one view's arrival map (reported in `summary.json`).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ArrivalReading {
+    /// The view's name in the case.
+    pub view: String,
+    /// The map's [`arrival_noise`]: the share of its filled pixels whose frame differs from
+    /// their 3 × 3 neighbours' median.
+    pub noise: f64,
+    /// The half-width (pixels) of the median it is read through; 0: as it is.
+    pub median_px: u32,
+}
+
+/// The median an arrival map is read through: `run.arrival_median_px` when set, else 1 pixel
+/// when the map's [`arrival_noise`] exceeds `run.arrival_noisy_share`, else none.
+pub fn arrival_reading(map: &Image, view: &str, run: &RunConfig) -> ArrivalReading {
+    let noise = arrival_noise(map);
+    let median_px = match run.arrival_median_px {
+        0 if noise > run.arrival_noisy_share => 1,
+        px => px,
+    };
+    ArrivalReading { view: view.to_string(), noise, median_px }
+}
+
+/// [`arrival_reading`] of each of a run's views, when the case has an arrival map for every one.
+pub fn run_arrival_readings(case: &Case, cfg: &Config) -> Result<Option<Vec<ArrivalReading>>> {
+    let case = run_case(case, cfg)?;
+    let Some(maps) = case.arrival_maps()? else { return Ok(None) };
+    let readings = maps.iter().zip(&case.file.views).map(|(map, entry)| arrival_reading(map, &entry.name, &cfg.run));
+    Ok(Some(readings.collect()))
 }
 
 /// An arrival map's frames as the times (frames of the run's clock) they stand for: each filled

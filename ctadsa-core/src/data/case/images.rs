@@ -210,6 +210,19 @@ pub fn median_arrival(map: &Image, half_px: u32) -> Image {
     Image { width: map.width, height: map.height, data }
 }
 
+/// How noisy an arrival map is: the share of its filled pixels whose frame differs from the
+/// median of the filled pixels of their 3 × 3 window ([`median_arrival`] with `half_px` 1); 0
+/// for a map no vessel fills. A map with one frame along each stretch of vessel changes only
+/// where frames meet and vessels cross (1–3 % of the shared BraVa cases' ideal maps); one
+/// whose frames were detected a frame off here and there changes wherever they were (with a
+/// per-pixel error of 0.5 frames' standard deviation, about 30 %).
+pub fn arrival_noise(map: &Image) -> f64 {
+    let median = median_arrival(map, 1);
+    let filled = map.data.iter().filter(|&&f| f >= 0.0).count();
+    let moved = map.data.iter().zip(&median.data).filter(|&(&f, &m)| f >= 0.0 && m != f).count();
+    if filled == 0 { 0.0 } else { moved as f64 / filled as f64 }
+}
+
 /// Average-pools an image by `b × b` (line integrals keep their units).
 pub fn bin_image(img: &Image, b: u32) -> Image {
     if b <= 1 {
@@ -280,5 +293,26 @@ mod tests {
                 assert_eq!(m, f, "pixel {i} of a one-frame vessel moves");
             }
         }
+    }
+
+    /// The noise share counts the pixels the median moves, of the filled ones only.
+    #[test]
+    fn arrival_noise_is_the_share_of_filled_pixels_the_median_moves() {
+        let n = NO_ARRIVAL;
+        #[rustfmt::skip]
+        let data = vec![
+            4.0, 4.0, 4.0, 4.0, 4.0, 4.0,
+            4.0, 4.0, 5.0, 4.0, 4.0, 4.0,
+            n,   n,   n,   n,   n,   n,
+            9.0, 9.0, 9.0, 9.0, 9.0, 9.0,
+        ];
+        let mut map = Image { width: 6, height: 4, data };
+        assert!((arrival_noise(&map) - 1.0 / 18.0).abs() < 1e-12);
+        map.data[8] = 4.0;
+        assert_eq!(arrival_noise(&map), 0.0, "one frame per vessel: nothing moves");
+        map.data[3] = 6.0;
+        map.data[20] = 7.0;
+        assert!((arrival_noise(&map) - 2.0 / 18.0).abs() < 1e-12);
+        assert_eq!(arrival_noise(&Image { width: 2, height: 1, data: vec![n, n] }), 0.0, "an empty map");
     }
 }

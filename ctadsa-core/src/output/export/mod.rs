@@ -17,7 +17,7 @@ use crate::data::mesh::io::write_mesh;
 use crate::data::volume::nifti_io::write_nifti;
 use crate::error::{Result, to_json, write_file};
 use crate::eval::score::{CaseTruth, EvalOptions};
-use crate::method::arrival::{prior_hidden_maps, run_arrival_maps};
+use crate::method::arrival::{prior_hidden_maps, run_arrival_maps, run_arrival_readings};
 use crate::method::train::Trainer;
 use crate::method::training_time::TrainingTime;
 use crate::output::confidence::mesh_without_doubtful;
@@ -110,6 +110,7 @@ pub fn write_outputs(
         centreline,
         topology,
         pose_errors,
+        arrival_readings: run_arrival_readings(case, cfg)?,
     };
     let summary_path = dir.join("summary.json");
     write_file(&summary_path, to_json(&summary, &summary_path)?.as_bytes())?;

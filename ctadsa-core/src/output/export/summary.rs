@@ -6,6 +6,7 @@ use crate::data::projector::correction::PoseError;
 use crate::eval::metrics::RegionScores;
 use crate::eval::surface_metrics::Coverage;
 use crate::eval::topology::TopologyScores;
+use crate::method::arrival::ArrivalReading;
 use crate::method::field_health::DensitySpread;
 use crate::method::train::Trainer;
 use crate::method::training_time::TrainingTime;
@@ -64,6 +65,9 @@ pub struct RunSummary {
     /// With pose refinement on a case whose true view corrections are known: how far each
     /// refined view is from the truth.
     pub pose_errors: Option<Vec<PoseError>>,
+    /// When the case has arrival maps: how noisy each of the run's views' map is and the median
+    /// it was read through (`run.arrival_median_px`, `run.arrival_noisy_share`).
+    pub arrival_readings: Option<Vec<ArrivalReading>>,
 }
 
 /// A member of a run (`run.prior_only_member`, `run.member_seeds`).
