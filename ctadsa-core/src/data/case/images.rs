@@ -268,13 +268,10 @@ mod tests {
         std::fs::remove_dir_all(dir).ok();
     }
 
-    /// The median keeps a vessel's frame where one pixel of it was detected a frame off, never
-    /// fills a pixel no vessel fills, and leaves a map of one frame per vessel as it is.
-    #[test]
-    fn median_arrival_outvotes_a_lone_frame_and_fills_nothing() {
+    /// A vessel 2 px wide along the rows, frame 4, pixel 8 of it detected as 5; a second vessel,
+    /// frame 9, one row below it.
+    fn two_vessels_one_pixel_off() -> Image {
         let n = NO_ARRIVAL;
-        // A vessel 2 px wide along the rows, frame 4, one pixel of it detected as 5; a second
-        // vessel, frame 9, one row below it.
         #[rustfmt::skip]
         let data = vec![
             4.0, 4.0, 4.0, 4.0, 4.0, 4.0,
@@ -282,7 +279,15 @@ mod tests {
             n,   n,   n,   n,   n,   n,
             9.0, 9.0, 9.0, 9.0, 9.0, 9.0,
         ];
-        let map = Image { width: 6, height: 4, data };
+        Image { width: 6, height: 4, data }
+    }
+
+    /// The median keeps a vessel's frame where one pixel of it was detected a frame off, never
+    /// fills a pixel no vessel fills, and leaves a map of one frame per vessel as it is.
+    #[test]
+    fn median_arrival_outvotes_a_lone_frame_and_fills_nothing() {
+        let n = NO_ARRIVAL;
+        let map = two_vessels_one_pixel_off();
         assert_eq!(median_arrival(&map, 0), map);
         let median = median_arrival(&map, 1);
         assert_eq!(median.data[8], 4.0, "the lone 5 goes");
@@ -299,14 +304,7 @@ mod tests {
     #[test]
     fn arrival_noise_is_the_share_of_filled_pixels_the_median_moves() {
         let n = NO_ARRIVAL;
-        #[rustfmt::skip]
-        let data = vec![
-            4.0, 4.0, 4.0, 4.0, 4.0, 4.0,
-            4.0, 4.0, 5.0, 4.0, 4.0, 4.0,
-            n,   n,   n,   n,   n,   n,
-            9.0, 9.0, 9.0, 9.0, 9.0, 9.0,
-        ];
-        let mut map = Image { width: 6, height: 4, data };
+        let mut map = two_vessels_one_pixel_off();
         assert!((arrival_noise(&map) - 1.0 / 18.0).abs() < 1e-12);
         map.data[8] = 4.0;
         assert_eq!(arrival_noise(&map), 0.0, "one frame per vessel: nothing moves");
