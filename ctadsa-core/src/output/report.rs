@@ -111,6 +111,7 @@ pub fn write_report(run_dir: &Path) -> Result<WrittenReport> {
     let title = case.as_ref().map_or("ctadsa run".to_string(), |c| format!("ctadsa — {}", c.name));
     let mut body = String::new();
     inputs(&mut body, case.as_ref());
+    arrival_readings(&mut body, &summary);
     renders(&mut body, run_dir)?;
     completed_tree(&mut body, run_dir)?;
     interactive_view(&mut body, run_dir, case.as_ref(), case_dir.as_deref(), &mut left_out);
@@ -219,6 +220,29 @@ fn inputs(html: &mut String, case: Option<&CaseFile>) {
         }
         html.push_str("</ul></details>");
     }
+}
+
+/// How the run read each view's arrival map (`arrival_readings` of summary.json), when the case
+/// has them.
+fn arrival_readings(html: &mut String, summary: &Value) {
+    let Some(readings) = summary["arrival_readings"].as_array() else { return };
+    html.push_str(
+        "<h2>Arrival maps</h2><p>A map is noisy when many of its filled pixels have a frame other than \
+         the median of their 3 × 3 neighbours (<code>run.arrival_noisy_share</code>); a noisy one is read \
+         through that median.</p><table><tr><th>view</th><th>filled pixels off their neighbours' median</th>\
+         <th>read</th></tr>",
+    );
+    for r in readings {
+        let noise =
+            r["noise"].as_f64().filter(|x| x.is_finite()).map_or("–".into(), |x| format!("{:.1} %", 100.0 * x));
+        let read = match r["median_px"].as_u64() {
+            Some(0) => "as it is".to_string(),
+            Some(px) => format!("through a {0} × {0} median", 2 * px + 1),
+            None => "–".into(),
+        };
+        let _ = write!(html, "<tr><td>{}</td><td>{noise}</td><td>{read}</td></tr>", text(&r["view"]));
+    }
+    html.push_str("</table>");
 }
 
 /// Target | render | difference of every view (`renders/*.png`).
@@ -486,6 +510,7 @@ mod tests {
             "metrics": {"overall": {"cd_mean_mm": evil, "cd_sum_mm": evil, "hd95_mm": evil, "hd_mm": evil}},
             "centreline": {"nodes": evil, "length_mm": evil, "new_length_mm": evil, "scores": {"recall": evil}},
             "pose_errors": [{"view": evil, "reprojection_before_px": evil}],
+            "arrival_readings": [{"view": evil, "noise": evil, "median_px": evil}],
             "topology": {"cl_dice": evil, "components": evil, "true_components": [evil], "betti0_error": {"x": evil}},
         });
         std::fs::write(dir.join("summary.json"), summary.to_string()).unwrap();
@@ -498,6 +523,21 @@ mod tests {
         assert!(page.contains("&lt;script&gt;alert(1)"), "the value is shown, escaped");
         // The page's own scripts: only the one that counts decoded images.
         assert_eq!(page.matches("<script").count(), 1, "one script of the page's own");
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// Each view's arrival map reading appears with its noise in percent and the median it got.
+    #[test]
+    fn arrival_readings_are_shown_per_view() {
+        let dir = std::env::temp_dir().join(format!("ctadsa-report-arrival-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let summary = serde_json::json!({
+            "arrival_readings": [{"view": "ap", "noise": 0.018, "median_px": 0}, {"view": "lat", "noise": 0.3125, "median_px": 1}],
+        });
+        std::fs::write(dir.join("summary.json"), summary.to_string()).unwrap();
+        let page = std::fs::read_to_string(write_report(&dir).unwrap().path).unwrap();
+        assert!(page.contains("<tr><td>ap</td><td>1.8 %</td><td>as it is</td></tr>"), "{page}");
+        assert!(page.contains("<tr><td>lat</td><td>31.2 %</td><td>through a 3 × 3 median</td></tr>"), "{page}");
         std::fs::remove_dir_all(&dir).ok();
     }
 
