@@ -164,9 +164,33 @@ fn arrival_maps_are_written_read_and_check_new_branches_in_two_views() {
     let out = ctadsa(&dir, &["complete", "--case", "case", "--out", "run-bad", "--set", "run.iterations=1"]);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && stderr.contains("ap-arrival.tiff") && stderr.contains("whole frames"), "{stderr}");
+    // A frame past any run, and a map where nothing fills (it would reject every point).
+    std::fs::write(&map, &good).unwrap();
+    let image = ctadsa_core::data::case::images::read_image(&map, None).unwrap();
+    for (name, value, expect) in [("huge", 1e30f32, "100000"), ("empty", -1.0, "no pixel")] {
+        let data = image.data.iter().map(|&f| if f >= 0.0 || value < 0.0 { value } else { f }).collect();
+        let edited = ctadsa_core::data::case::images::Image { data, ..image.clone() };
+        ctadsa_core::data::case::images::write_tiff_f32(&map, &edited).unwrap();
+        let out =
+            ctadsa(&dir, &["complete", "--case", "case", "--out", &format!("run-{name}"), "--set", "run.iterations=1"]);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            !out.status.success() && stderr.contains("ap-arrival.tiff") && stderr.contains(expect),
+            "{name}: {stderr}"
+        );
+    }
     std::fs::write(&map, good).unwrap();
     let labels = concat!(env!("CARGO_MANIFEST_DIR"), "/../tests/data/topcow/topcow_ct_roi_003.nii.gz");
     let out = ctadsa(&dir, &["synth", "--labels", labels, "--out", "labels", "--arrival-fps", "5"]);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && stderr.contains("arrival maps") && stderr.contains("tree"), "{stderr}");
+    // Contrast so slow that its frames pass what a case may hold: refused, naming both settings;
+    // so fast that every vessel fills in one frame: written, with a warning.
+    let slow = ["--voxel-mm", "0.6", "--arrival-fps", "7.5", "--flow-mm-s", "1e-6"];
+    let out = ctadsa(&dir, &[&synth[..2], &["slow"], &synth[3..], &slow].concat());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && stderr.contains("--arrival-fps") && stderr.contains("--flow-mm-s"), "{stderr}");
+    let fast = ["--voxel-mm", "0.6", "--arrival-fps", "0.1", "--flow-mm-s", "1e5"];
+    let stdout = ok(&dir, &[&synth[..2], &["fast"], &synth[3..], &fast].concat());
+    assert!(stdout.contains("warning: every vessel fills in frame 0"), "{stdout}");
 }

@@ -101,6 +101,8 @@ fn malformed_swc_trees_are_refused_naming_the_file() {
         ("negative-radius", "1 1 0 0 0 -1 -1\n2 1 1 0 0 -1 1\n"),
         ("too-few-columns", "1 1 0 0 0 1\n2 1 1 0 0 1\n"),
         ("binary", "\u{0}\u{1}\u{2}\u{ff}\u{fe}garbage\u{7}\n\u{0}"),
+        ("one-node", "1 1 0 0 0 1 -1\n"),
+        ("only-roots", "1 1 0 0 0 1 -1\n2 1 5 0 0 1 -1\n"),
     ];
     for (name, text) in corpus {
         let file = format!("{name}.swc");
@@ -310,6 +312,7 @@ fn malformed_case_files_are_refused_and_nothing_escapes() {
         edited_case(&dir, "wrong-version", |j| j["version"] = 99.into()),
         edited_case(&dir, "no-views", |j| j["views"] = serde_json::json!([])),
         edited_case(&dir, "bad-geometry", |j| j["views"][0]["geometry"]["dso_mm"] = 0.0.into()),
+        edited_case(&dir, "angle-past-a-turn", |j| j["views"][0]["geometry"]["primary_deg"] = 1e300.into()),
         edited_case(&dir, "duplicate-view-names", |j| j["views"][1]["name"] = j["views"][0]["name"].clone()),
         // More views than are read, and detectors too large together: refused before any image
         // is read (each view may name the same 2 GiB file).

@@ -96,6 +96,13 @@ impl ConeBeamView {
         if finite.iter().any(|v| !v.is_finite()) {
             return Err(RenderError::InvalidView(format!("non-finite TIGRE parameter in {g:?}")));
         }
+        // Beyond a full turn an angle is a unit or field mix-up, not a C-arm pose.
+        if g.primary_deg.abs() > 360.0 || g.secondary_deg.abs() > 360.0 {
+            return Err(RenderError::InvalidView(format!(
+                "angles are in degrees within ±360, got primary {}° and secondary {}°",
+                g.primary_deg, g.secondary_deg
+            )));
+        }
         if g.dso_mm <= 0.0 || g.dsd_mm <= g.dso_mm {
             return Err(RenderError::InvalidView(format!(
                 "need 0 < DSO < DSD, got DSO {} mm and DSD {} mm",

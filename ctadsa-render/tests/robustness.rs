@@ -120,6 +120,15 @@ fn bad_shapes_views_and_settings_are_errors() {
     assert!(matches!(ViewSet::new(vec![a, b]), Err(RenderError::MixedViewSizes { index: 1, .. })));
     let bad_geom = TigreGeometry { dso_mm: 800.0, ..small_geometry(0.0, 8, 1.0) };
     assert!(matches!(ConeBeamView::from_tigre(&bad_geom), Err(RenderError::InvalidView(_))));
+    // Angles past a full turn are refused (finite, yet no C-arm pose); a full turn is not.
+    for (primary_deg, secondary_deg, ok) in [(1e300, 0.0, false), (0.0, -361.0, false), (-360.0, 360.0, true)] {
+        let g = TigreGeometry { primary_deg, secondary_deg, ..small_geometry(0.0, 8, 1.0) };
+        let view = ConeBeamView::from_tigre(&g);
+        assert_eq!(view.is_ok(), ok, "{primary_deg}°, {secondary_deg}°: {view:?}");
+        if let Err(RenderError::InvalidView(m)) = &view {
+            assert!(m.contains("±360"), "{m}");
+        }
+    }
     let not_rigid = glam::DMat4::from_scale(glam::DVec3::splat(2.0));
     let intr = Intrinsics { focal_px: [100.0, 100.0], principal_px: [4.0, 4.0] };
     assert!(ConeBeamView::from_world_to_camera(not_rigid, intr, 8, 8).is_err());

@@ -89,11 +89,14 @@ impl Config {
         }
         let cfg: Config = toml::Value::Table(table).try_into().map_err(|e: toml::de::Error| {
             let problem = e.to_string();
-            // A bad value an override set is the override's fault, not the file's.
-            let by_override = overrides
-                .iter()
-                .rev()
-                .find(|o| o.split_once('=').is_some_and(|(key, _)| problem.contains(&format!("in `{}`", key.trim()))));
+            // A bad value or an unknown key an override set is the override's fault, not the file's.
+            let by_override = overrides.iter().rev().find(|o| {
+                o.split_once('=').is_some_and(|(key, _)| {
+                    let key = key.trim();
+                    let last = key.rsplit('.').next().unwrap_or(key);
+                    problem.contains(&format!("in `{key}`")) || problem.contains(&format!("unknown field `{last}`"))
+                })
+            });
             match by_override {
                 Some(o) => CoreError::invalid(format!("override `{o}`: {}", problem.trim_end())),
                 None => CoreError::Format { path: name.into(), problem },

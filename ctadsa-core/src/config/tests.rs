@@ -4,6 +4,13 @@ use super::*;
 fn unknown_keys_and_bad_values_name_the_key() {
     let err = Config::load(None, &["run.iterationz=5".into()]).unwrap_err().to_string();
     assert!(err.contains("iterationz"), "{err}");
+    // An unknown key from an override blames the override, not the file it was laid on.
+    let err = Config::from_toml_str("[run]\niterations = 5\n", "file.toml", &["run.iterationz=5".into()])
+        .unwrap_err()
+        .to_string();
+    assert!(err.starts_with("override `run.iterationz=5`") && !err.contains("file.toml"), "{err}");
+    let err = Config::from_toml_str("[run]\niterationz = 5\n", "file.toml", &[]).unwrap_err().to_string();
+    assert!(err.contains("file.toml") && err.contains("iterationz"), "{err}");
     let err = Config::load(None, &["loss.lambda_dssim=2".into()]).unwrap_err().to_string();
     assert!(err.contains("loss.lambda_dssim"), "{err}");
     let err = Config::load(None, &["init.n2_mode=\"sideways\"".into()]).unwrap_err().to_string();

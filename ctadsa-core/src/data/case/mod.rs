@@ -14,7 +14,7 @@ use serde::{Deserialize, Serialize};
 use crate::data::mesh::{TriMesh, io::read_mesh};
 use crate::data::volume::{BoxMm, Grid};
 use crate::error::{CoreError, Result, check_file_name, read_file, write_file};
-use images::{Image, read_image};
+use images::{Image, NO_ARRIVAL, read_image};
 use prior_check::check_prior_in_views;
 
 /// The value of `format` in every case file.
@@ -147,6 +147,10 @@ impl ViewGeometry {
 
 /// Largest [`ViewEntry::arrival_offset_frames`] a case may give.
 pub const MAX_ARRIVAL_OFFSET_FRAMES: f64 = 1000.0;
+
+/// Largest frame an arrival map ([`ViewEntry::arrival`]) may hold: far beyond any DSA run
+/// (tens of frames per second for under a minute), small enough to stay a whole `f32`.
+pub const MAX_ARRIVAL_FRAME: f32 = 100_000.0;
 
 /// One view of the case.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -416,7 +420,8 @@ impl Case {
     }
 
     /// The arrival maps of the views ([`ViewEntry::arrival`]), when every view has one: each of
-    /// the view's size, its values whole frames ≥ 0 or −1 (no vessel).
+    /// the view's size, its values whole frames from 0 to [`MAX_ARRIVAL_FRAME`] or −1 (no
+    /// vessel), some pixel filled.
     pub fn arrival_maps(&self) -> Result<Option<Vec<Image>>> {
         let Some(paths) = self.file.views.iter().map(|v| v.arrival.as_ref()).collect::<Option<Vec<_>>>() else {
             return Ok(None);
@@ -434,15 +439,28 @@ impl Case {
                     ),
                 ));
             }
-            if let Some(i) = map.data.iter().position(|&f| !(f == -1.0 || (f >= 0.0 && f.fract() == 0.0))) {
+            let frame = |f: f32| (0.0..=MAX_ARRIVAL_FRAME).contains(&f) && f.fract() == 0.0;
+            if let Some(i) = map.data.iter().position(|&f| !(f == NO_ARRIVAL || frame(f))) {
                 return Err(CoreError::format(
                     &path,
                     format!(
-                        "pixel (column {}, row {}) is {}: an arrival map holds whole frames ≥ 0, or −1 where no \
-                         vessel fills",
+                        "pixel (column {}, row {}) is {}: an arrival map holds whole frames from 0 to {}, or −1 \
+                         where no vessel fills",
                         i as u32 % map.width,
                         i as u32 / map.width,
-                        map.data[i]
+                        map.data[i],
+                        MAX_ARRIVAL_FRAME
+                    ),
+                ));
+            }
+            // A map where nothing fills would reject every point of the view in the arrival checks.
+            if !map.data.iter().any(|&f| frame(f)) {
+                return Err(CoreError::format(
+                    &path,
+                    format!(
+                        "no pixel of view `{}`'s arrival map fills (every pixel is −1): an arrival map marks \
+                         where the vessels fill",
+                        entry.name
                     ),
                 ));
             }

@@ -57,9 +57,9 @@ impl ArrivalSpec {
 
     /// Range checks; the error names the setting.
     pub fn validate(&self) -> Result<()> {
-        if !(self.frames_per_s > 0.0 && self.frames_per_s <= 1000.0) {
+        if !(self.frames_per_s >= 0.1 && self.frames_per_s <= 1000.0) {
             return Err(CoreError::invalid(format!(
-                "arrival frame rate must be in (0, 1000] /s, got {}",
+                "arrival frame rate must be in [0.1, 1000] /s, got {}",
                 self.frames_per_s
             )));
         }

@@ -12,8 +12,10 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
+use crate::data::case::images::{Image, NO_ARRIVAL};
 use crate::data::case::{
-    CASE_FILE, CASE_FORMAT, CASE_VERSION, CaseFile, GroundTruth, ImageValues, PriorEntry, Provenance, VolumeEntry,
+    CASE_FILE, CASE_FORMAT, CASE_VERSION, CaseFile, GroundTruth, ImageValues, MAX_ARRIVAL_FRAME, PriorEntry,
+    Provenance, VolumeEntry,
 };
 use crate::data::mesh::TriMesh;
 use crate::data::mesh::io::write_mesh;
@@ -145,16 +147,31 @@ fn synthesize_into(
     progress("projections");
     let mut acq = acquire(cfg, &r.complete)?;
     let (normalised_by, view_corrections, n_views) = (acq.normalised_by, acq.view_corrections.clone(), acq.names.len());
-    let view_warnings = std::mem::take(&mut acq.warnings);
+    let mut view_warnings = std::mem::take(&mut acq.warnings);
     if let Some(spec) = &cfg.arrival {
         let tree = r.tree.as_ref().ok_or_else(|| CoreError::invalid("arrival maps need a tree"))?;
-        acq.arrivals = Some(
-            acq.imaged
-                .iter()
-                .enumerate()
-                .map(|(i, view)| (arrival_map(tree, view, i, spec), spec.delay_frames(i)))
-                .collect(),
-        );
+        let arrivals: Vec<(Image, f64)> = acq
+            .imaged
+            .iter()
+            .enumerate()
+            .map(|(i, view)| (arrival_map(tree, view, i, spec), spec.delay_frames(i)))
+            .collect();
+        let frames = || arrivals.iter().flat_map(|(m, _)| m.data.iter().copied().filter(|&f| f != NO_ARRIVAL));
+        let last = frames().fold(0.0f32, f32::max);
+        if last > MAX_ARRIVAL_FRAME {
+            return Err(CoreError::invalid(format!(
+                "the arrival maps would reach frame {last} (a case holds at most {MAX_ARRIVAL_FRAME}): \
+                 lower --arrival-fps ({} /s) or raise --flow-mm-s ({} mm/s)",
+                spec.frames_per_s, spec.flow_mm_s
+            )));
+        }
+        if frames().all(|f| f == last) {
+            view_warnings.push(format!(
+                "every vessel fills in frame {last}: the arrival maps say nothing about time \
+                 (raise --arrival-fps or lower --flow-mm-s)"
+            ));
+        }
+        acq.arrivals = Some(arrivals);
     }
     if replace {
         remove_case(out)?;

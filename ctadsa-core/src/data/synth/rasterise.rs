@@ -37,7 +37,7 @@ pub(super) fn from_tree(
     if tree.segments().is_empty() {
         let why = warnings.first().map_or(String::new(), |w| format!("; first problem: {w}"));
         return Err(CoreError::invalid(format!(
-            "the tree has no vessel segment ({} nodes, none with a usable parent){why}",
+            "{source}: the tree has no vessel segment ({} nodes, none with a usable parent){why}",
             tree.nodes.len()
         )));
     }
