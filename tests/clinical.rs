@@ -126,6 +126,11 @@ fn missing_tags_wrong_modality_and_single_frames_are_named() {
     let e = error_of(&s, "distances");
     assert!(e.contains("Distance Source to Patient"), "{e}");
 
+    let mut s = small_spec();
+    s.primary_deg = Some(1000.0);
+    let e = error_of(&s, "angle");
+    assert!(e.contains("(0018,1510)") && e.contains("±360"), "{e}");
+
     let e = read_xa_run(Path::new("/nonexistent/run.dcm")).unwrap_err().to_string();
     assert!(e.contains("/nonexistent/run.dcm"), "{e}");
     let junk = tmp("bad").join("junk.dcm");

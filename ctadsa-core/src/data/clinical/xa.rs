@@ -284,11 +284,11 @@ fn read_geometry(obj: &DefaultDicomObject, path: &Path) -> Result<XaGeometry> {
         // (0018,1164) is row spacing \ column spacing.
         pixel_mm: [spacing[1], spacing[0]],
     };
-    if !(geometry.primary_deg.is_finite() && geometry.secondary_deg.is_finite()) {
+    if !(geometry.primary_deg.abs() <= 360.0 && geometry.secondary_deg.abs() <= 360.0) {
         return Err(CoreError::format(
             path,
             format!(
-                "Positioner Primary/Secondary Angle (0018,1510)/(0018,1511) must be finite, got {} / {}",
+                "Positioner Primary/Secondary Angle (0018,1510)/(0018,1511) must be degrees within ±360, got {} / {}",
                 geometry.primary_deg, geometry.secondary_deg
             ),
         ));
