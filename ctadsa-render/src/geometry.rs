@@ -52,6 +52,10 @@ pub struct Intrinsics {
 /// bits; a 65,536² detector would already be 16 GiB per image).
 pub const MAX_DETECTOR_PX: u32 = 1 << 16;
 
+/// Largest |angle| (degrees) a C-arm angle may have: beyond a full turn an angle is a unit or
+/// field mix-up, not a pose.
+pub const MAX_ANGLE_DEG: f64 = 360.0;
+
 /// One cone-beam X-ray view: the source position, the camera rotation and the detector intrinsics.
 ///
 /// Invariants (checked by the constructors): the rotation is orthonormal with determinant +1,
@@ -96,8 +100,7 @@ impl ConeBeamView {
         if finite.iter().any(|v| !v.is_finite()) {
             return Err(RenderError::InvalidView(format!("non-finite TIGRE parameter in {g:?}")));
         }
-        // Beyond a full turn an angle is a unit or field mix-up, not a C-arm pose.
-        if g.primary_deg.abs() > 360.0 || g.secondary_deg.abs() > 360.0 {
+        if g.primary_deg.abs() > MAX_ANGLE_DEG || g.secondary_deg.abs() > MAX_ANGLE_DEG {
             return Err(RenderError::InvalidView(format!(
                 "angles are in degrees within ±360, got primary {}° and secondary {}°",
                 g.primary_deg, g.secondary_deg

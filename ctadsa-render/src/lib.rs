@@ -32,7 +32,7 @@ use burn::tensor::Tensor;
 
 pub use error::RenderError;
 pub use gaussians::Gaussians;
-pub use geometry::{ConeBeamView, Intrinsics, MAX_DETECTOR_PX, TigreGeometry};
+pub use geometry::{ConeBeamView, Intrinsics, MAX_ANGLE_DEG, MAX_DETECTOR_PX, TigreGeometry};
 #[cfg(feature = "wgpu")]
 pub use gpu::probe::{REQUIRED_FEATURE, wgpu_adapter};
 pub use grid::VoxelGrid;

@@ -3,6 +3,7 @@
 
 use std::path::{Path, PathBuf};
 
+use ctadsa_render::MAX_ANGLE_DEG;
 use dicom_core::{DataElement, PrimitiveValue, Tag, VR};
 use dicom_dictionary_std::{tags, uids};
 use dicom_object::{DefaultDicomObject, FileMetaTableBuilder, InMemDicomObject, open_file};
@@ -284,7 +285,7 @@ fn read_geometry(obj: &DefaultDicomObject, path: &Path) -> Result<XaGeometry> {
         // (0018,1164) is row spacing \ column spacing.
         pixel_mm: [spacing[1], spacing[0]],
     };
-    if !(geometry.primary_deg.abs() <= 360.0 && geometry.secondary_deg.abs() <= 360.0) {
+    if !(geometry.primary_deg.abs() <= MAX_ANGLE_DEG && geometry.secondary_deg.abs() <= MAX_ANGLE_DEG) {
         return Err(CoreError::format(
             path,
             format!(
