@@ -21,9 +21,9 @@ pub struct LabelArgs {
     /// Label values making the vessels (comma-separated; default: every non-zero label).
     #[arg(long, value_delimiter = ',')]
     label_ids: Vec<u32>,
-    /// Drop connected pieces of the prior surface smaller than this (mm²).
-    #[arg(long, default_value_t = 20.0)]
-    min_island_mm2: f64,
+    /// Drop connected pieces of the prior surface smaller than this (mm²) [default: 20].
+    #[arg(long, value_parser = island_area)]
+    min_island_mm2: Option<f64>,
     /// Shift (mm) added to the label volume's world coordinates, e.g. minus the isocentre's
     /// position in CTA coordinates from a registration.
     #[arg(long, value_delimiter = ',', num_args = 3, allow_hyphen_values = true)]
@@ -31,9 +31,39 @@ pub struct LabelArgs {
     /// Put the centre of the prior's box at the isocentre (a rough start for pose refinement).
     #[arg(long, conflicts_with = "prior_shift_mm")]
     centre_prior: bool,
-    /// Keep only the part of the prior the views see: all (no cut), every, or any.
-    #[arg(long, default_value = "every")]
-    visible: String,
+    /// Keep only the part of the prior the views see: all (no cut), every, or any [default:
+    /// every].
+    #[arg(long, value_parser = ["all", "every", "any"])]
+    visible: Option<String>,
+}
+
+/// Islands smaller than this (mm²) are dropped from a label prior unless `--min-island-mm2`
+/// says otherwise.
+const DEFAULT_MIN_ISLAND_MM2: f64 = 20.0;
+
+impl LabelArgs {
+    /// The first of these options given on the command line, if any: they shape a prior made
+    /// from a label volume and mean nothing without one.
+    fn first_given(&self) -> Option<&'static str> {
+        [
+            (!self.label_ids.is_empty(), "--label-ids"),
+            (self.min_island_mm2.is_some(), "--min-island-mm2"),
+            (self.prior_shift_mm.is_some(), "--prior-shift-mm"),
+            (self.centre_prior, "--centre-prior"),
+            (self.visible.is_some(), "--visible"),
+        ]
+        .into_iter()
+        .find_map(|(given, flag)| given.then_some(flag))
+    }
+}
+
+/// `--min-island-mm2`: a finite area of at least 0 mm².
+fn island_area(text: &str) -> std::result::Result<f64, String> {
+    match text.parse::<f64>() {
+        Ok(v) if v.is_finite() && v >= 0.0 => Ok(v),
+        Ok(v) => Err(format!("{v} is not an area: expected a finite number ≥ 0 (mm²)")),
+        Err(e) => Err(e.to_string()),
+    }
 }
 
 fn visibility(text: &str) -> Result<Visibility> {
@@ -59,8 +89,10 @@ fn label_prior(labels: &Path, a: &LabelArgs, views: &[ConeBeamView]) -> Result<(
         Some(v) => bail!("--prior-shift-mm needs 3 values, got {}", v.len()),
         None => [0.0; 3],
     };
-    let o = LabelPriorOptions { labels: a.label_ids.clone(), min_island_mm2: a.min_island_mm2, translation_mm: shift };
-    let visible = visibility(&a.visible)?;
+    let min_island_mm2 = a.min_island_mm2.unwrap_or(DEFAULT_MIN_ISLAND_MM2);
+    let o = LabelPriorOptions { labels: a.label_ids.clone(), min_island_mm2, translation_mm: shift };
+    let visible_name = a.visible.as_deref().unwrap_or("every");
+    let visible = visibility(visible_name)?;
     let (p, shift) = if a.centre_prior {
         centred_prior_from_labels(labels, &o, views, visible)?
     } else {
@@ -72,7 +104,7 @@ fn label_prior(labels: &Path, a: &LabelArgs, views: &[ConeBeamView]) -> Result<(
         p.voxels,
         p.mesh.faces.len(),
         p.islands_dropped,
-        a.min_island_mm2,
+        min_island_mm2,
         p.hidden_triangles,
         shift
     );
@@ -80,8 +112,8 @@ fn label_prior(labels: &Path, a: &LabelArgs, views: &[ConeBeamView]) -> Result<(
         "labels {:?} of {} (islands < {} mm² dropped, visibility `{}`, shift {:?} mm)",
         a.label_ids,
         labels.display(),
-        a.min_island_mm2,
-        a.visible,
+        min_island_mm2,
+        visible_name,
         shift
     );
     Ok((p.mesh, description))
@@ -147,6 +179,11 @@ fn parse_range(text: &str) -> Result<std::ops::RangeInclusive<usize>> {
 }
 
 pub fn import_dsa(args: ImportDsaArgs) -> Result<()> {
+    if let (None, Some(flag)) = (&args.labels, args.label_args.first_given()) {
+        bail!(
+            "{flag} shapes a prior made from --labels; a --prior mesh is taken as it is, so drop {flag} or give --labels"
+        );
+    }
     let options = DsaOptions {
         subtraction: Subtraction::parse(&args.subtraction)?,
         mask_frames: (!args.mask_frames.is_empty()).then(|| args.mask_frames.clone()),
@@ -239,9 +276,15 @@ pub fn prior(args: PriorArgs) -> Result<()> {
         None => Vec::new(),
     };
     let mut label_args = args.label_args.clone();
-    if views.is_empty() && label_args.visible != "all" {
-        eprintln!("no --case: no visibility cut");
-        label_args.visible = "all".into();
+    if views.is_empty() {
+        match label_args.visible.as_deref() {
+            Some("all") => {}
+            Some(cut) => bail!("--visible {cut}: a visibility cut needs the views of a --case"),
+            None => {
+                eprintln!("no --case: no visibility cut");
+                label_args.visible = Some("all".into());
+            }
+        }
     }
     let (mesh, _) = label_prior(&args.labels, &label_args, &views)?;
     // With --case, a prior the case's views do not see (a missing shift) is refused, as the

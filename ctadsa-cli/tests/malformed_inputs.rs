@@ -667,6 +667,18 @@ fn malformed_dicom_runs_are_refused_naming_the_tag() {
     for (args, expect) in [
         (&["--run", "ok.dcm", "--run", "ok.dcm"][..], "have the same geometry"),
         (&["--run", "ok.dcm", "--voxel-mm", "1e-4"][..], "raise the voxel size"),
+        // A voxel larger than the working box: a grid that cannot hold a vessel.
+        (&["--run", "ok.dcm", "--voxel-mm", "1e9"][..], "coarser than the working box"),
+        // Options that shape a label prior, with a mesh prior (or none): they would be ignored.
+        (
+            &["--run", "ok.dcm", "--prior", "beside.obj", "--label-ids", "3"][..],
+            "--label-ids shapes a prior made from --labels",
+        ),
+        (&["--run", "ok.dcm", "--min-island-mm2", "5"][..], "--min-island-mm2 shapes a prior"),
+        (&["--run", "ok.dcm", "--prior-shift-mm", "1", "2", "3"][..], "--prior-shift-mm shapes a prior"),
+        (&["--run", "ok.dcm", "--visible", "any"][..], "--visible shapes a prior"),
+        (&["--run", "ok.dcm", "--visible", "some"][..], "possible values: all, every, any"),
+        (&["--run", "ok.dcm", "--min-island-mm2", "NaN"][..], "NaN is not an area"),
     ] {
         let all: Vec<&str> = ["import-dsa", "--out", "out/case"].iter().chain(args).copied().collect();
         refused(&dir, &all, &[expect]);

@@ -152,6 +152,10 @@ pub const MAX_ARRIVAL_OFFSET_FRAMES: f64 = 1000.0;
 /// (tens of frames per second for under a minute), small enough to stay a whole `f32`.
 pub const MAX_ARRIVAL_FRAME: f32 = 100_000.0;
 
+/// The fewest voxels along each axis of a case's working volume (`volume.voxel_mm` against the
+/// box): a coarser grid cannot hold a vessel, so the case is refused rather than run.
+pub const MIN_VOLUME_VOXELS_PER_AXIS: usize = 4;
+
 /// One view of the case.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -358,8 +362,19 @@ impl CaseFile {
                 ),
             ));
         }
-        Grid::covering(&b, file.volume.voxel_mm)
+        let grid = Grid::covering(&b, file.volume.voxel_mm)
             .map_err(|e| CoreError::format(path, format!("`volume.voxel_mm` {}: {e}", file.volume.voxel_mm)))?;
+        if grid.dims.iter().any(|&n| n < MIN_VOLUME_VOXELS_PER_AXIS) {
+            let size = b.size_mm();
+            return Err(CoreError::format(
+                path,
+                format!(
+                    "`volume.voxel_mm` {} is coarser than the working box ({:.1} × {:.1} × {:.1} mm gives {:?} \
+                     voxels): at least {MIN_VOLUME_VOXELS_PER_AXIS} voxels per axis are needed",
+                    file.volume.voxel_mm, size[0], size[1], size[2], grid.dims
+                ),
+            ));
+        }
         Ok(())
     }
 

@@ -41,8 +41,12 @@ pub fn check_dicom_lengths(bytes: &[u8]) -> std::result::Result<(), String> {
     }
     let (syntax, data_start) = file_meta(bytes)?;
     if !NATIVE.contains(&syntax.as_str()) {
+        // A UID is at most 64 characters of digits and dots; a damaged one is shown escaped
+        // and cut, so that no stray bytes reach the terminal.
+        let shown: String = syntax.chars().take(64).collect();
+        let more = if syntax.chars().count() > 64 { "…" } else { "" };
         return Err(format!(
-            "transfer syntax {syntax} is not uncompressed little endian; decompress first \
+            "transfer syntax {shown:?}{more} is not uncompressed little endian; decompress first \
              (e.g. `gdcmconv --raw in.dcm out.dcm` or `dcmdjpeg in.dcm out.dcm`)"
         ));
     }
@@ -180,5 +184,10 @@ mod tests {
         let b = header("1.2.840.10008.1.2.1.99");
         assert!(check_dicom_lengths(&b).unwrap_err().contains("1.2.840.10008.1.2.1.99"));
         assert!(check_dicom_lengths(b"not dicom").unwrap_err().contains("DICM"));
+        // A damaged UID that swallowed the next elements: shown escaped and cut, no raw bytes.
+        let garbage = format!("1.2.840.10008.1.2.1\0\x02\x1b[31m{}", "7".repeat(200));
+        let err = check_dicom_lengths(&header(&garbage)).unwrap_err();
+        assert!(err.contains("\\0\\u{2}\\u{1b}[31m") && err.contains("…"), "{err}");
+        assert!(!err.chars().any(|c| c.is_control()) && err.len() < 300, "{err}");
     }
 }
