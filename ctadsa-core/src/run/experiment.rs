@@ -12,7 +12,7 @@ use burn::tensor::Device;
 use serde::Deserialize;
 
 use crate::config::Config;
-use crate::data::case::{CASE_FILE, Case, CaseFile, MAX_VIEWS, PriorEntry, text_hash};
+use crate::data::case::{CASE_FILE, Case, CaseFile, FNV1A_START, MAX_VIEWS, PriorEntry, fnv1a, fnv1a_file, text_hash};
 use crate::error::{CoreError, Result, check_file_name, read_file, to_json, write_file};
 use crate::eval::metrics::SurfaceScores;
 use crate::output::export::RunSummary;
@@ -76,6 +76,9 @@ pub struct Cell {
     /// The case's [`CaseFile::fingerprint`] when the matrix was read (`None`: the case could
     /// not be read then; its cell says why when it runs).
     pub case_fingerprint: Option<String>,
+    /// The digest of the files the cell reads from its case ([`case_files_digest`]) when the
+    /// matrix was read (`None`: the case could not be read then).
+    pub case_files: Option<String>,
 }
 
 impl Cell {
@@ -97,15 +100,17 @@ impl Cell {
         // exhaust memory (it reads as "not finished").
         let bytes = crate::error::read_file(&self.dir.join("cell.json")).ok()?;
         let result: CellResult = serde_json::from_slice(&bytes).ok()?;
-        let same_case = match (&result.case_fingerprint, &self.case_fingerprint) {
+        let same = |ran_on: &Option<String>, now: &Option<String>| match (ran_on, now) {
             (Some(ran_on), Some(now)) => ran_on == now,
             _ => true,
         };
+        let same_case =
+            same(&result.case_fingerprint, &self.case_fingerprint) && same(&result.case_files, &self.case_files);
         (result.config_hash.as_deref() == Some(self.config_hash.as_str()) && same_case).then_some(result)
     }
 
-    /// Whether a `cell.json` is there but of another configuration or case, or unreadable
-    /// (rerun when run).
+    /// Whether a `cell.json` is there but of another configuration or case (its `case.json` or
+    /// a file it reads re-made), or unreadable (rerun when run).
     pub fn stale(&self) -> bool {
         self.dir.join("cell.json").exists() && self.finished().is_none()
     }
@@ -198,6 +203,37 @@ fn cell_metrics(summary: &RunSummary) -> BTreeMap<String, Option<f64>> {
 
 /// How many views the case in `dir` has, when its `case.json` can be read.
 /// The case file in `dir`, when it can be read.
+/// A digest (16 hex digits) of the names and bytes of the files a cell reads from its case: the
+/// view images and arrival maps, the prior mesh (`priors/<tag>/` when the matrix names the
+/// prior) and the ground truth. A file re-made under the same name (a prior cut from other
+/// labels, views imported again) changes it where `case.json` may stay as it was. A file that
+/// cannot be read enters by its name alone; the cell's run says what is wrong with it.
+pub fn case_files_digest(dir: &Path, file: &CaseFile, prior: Option<&str>) -> String {
+    let mut names: Vec<String> = Vec::new();
+    for view in &file.views {
+        names.push(view.image.clone());
+        names.extend(view.arrival.clone());
+    }
+    let gt = file.ground_truth.as_ref();
+    match prior {
+        Some(tag) => names.extend([format!("priors/{tag}/prior.obj"), format!("priors/{tag}/missing.obj")]),
+        None => {
+            names.extend(file.prior.as_ref().map(|p| p.mesh.clone()));
+            names.extend(gt.and_then(|g| g.missing_mesh.clone()));
+        }
+    }
+    if let Some(gt) = gt {
+        names.push(gt.complete_mesh.clone());
+        names.extend(gt.labels.clone());
+        names.extend(gt.tree.clone());
+    }
+    let state = names.iter().fold(FNV1A_START, |state, name| {
+        let state = fnv1a(state, name.as_bytes());
+        fnv1a_file(state, &dir.join(name)).map(|(state, _)| state).unwrap_or(state)
+    });
+    format!("{state:016x}")
+}
+
 fn case_file(dir: &Path) -> Option<CaseFile> {
     let path = dir.join(CASE_FILE);
     let text = String::from_utf8(read_file(&path).ok()?).ok()?;
@@ -306,6 +342,7 @@ impl Experiment {
                 )));
             }
             for prior in &priors {
+                let case_files = file.as_ref().map(|f| case_files_digest(case_dir, f, prior.as_deref()));
                 for views in &matrix.views {
                     for method in &matrix.methods {
                         let tag = views.iter().map(|v| v.to_string()).collect::<Vec<_>>().join("-");
@@ -325,6 +362,7 @@ impl Experiment {
                             dir,
                             config_hash,
                             case_fingerprint: case_fingerprint.clone(),
+                            case_files: case_files.clone(),
                         });
                     }
                 }
@@ -343,6 +381,7 @@ impl Experiment {
         })?;
         let case = Case::load(&cell.case_dir)?;
         let case_fingerprint = case.fingerprint();
+        let case_files = case_files_digest(&cell.case_dir, &case.file, cell.prior.as_deref());
         let case = match &cell.prior {
             Some(tag) => with_prior(&case, tag)?,
             None => case,
@@ -385,6 +424,7 @@ impl Experiment {
             metrics: cell_metrics(&summary),
             config_hash: Some(cell.config_hash.clone()),
             case_fingerprint: Some(case_fingerprint),
+            case_files: Some(case_files),
         };
         let path = cell.dir.join("cell.json");
         write_file(&path, to_json(&result, &path)?.as_bytes())?;
@@ -519,7 +559,7 @@ mod tests {
     }
 
     /// A cell's result is its own only on the case it ran on: re-making the case (another
-    /// `synth` into the same folder) makes the finished cell stale.
+    /// `synth` into the same folder) or a file it reads makes the finished cell stale.
     #[test]
     fn results_on_a_case_since_remade_are_stale() {
         let dir = std::env::temp_dir().join(format!("ctadsa-matrix-case-{}", std::process::id()));
@@ -553,6 +593,26 @@ mod tests {
         r.case_fingerprint = None;
         std::fs::write(cell.dir.join("cell.json"), serde_json::to_string(&r).unwrap()).unwrap();
         assert!(cell.finished().is_some());
+        // A file the cell reads re-made under the same name, case.json untouched (a prior cut
+        // again from other labels): the result is stale too.
+        let case = Case::load(&case_dir).unwrap();
+        r.case_fingerprint = Some(case.fingerprint());
+        r.case_files = Some(case_files_digest(&case_dir, &case.file, None));
+        std::fs::write(cell.dir.join("cell.json"), serde_json::to_string(&r).unwrap()).unwrap();
+        let cell = load().cells[0].clone();
+        assert_eq!(cell.case_files, r.case_files);
+        assert!(cell.finished().is_some() && !cell.stale());
+        let prior = case_dir.join(&case.file.prior.as_ref().unwrap().mesh);
+        let mut bytes = std::fs::read(&prior).unwrap();
+        bytes.extend_from_slice(b"# re-made\n");
+        std::fs::write(&prior, bytes).unwrap();
+        let cell = load().cells[0].clone();
+        assert!(cell.finished().is_none() && cell.stale(), "a result on the earlier prior mesh is stale");
+        // A view image swapped for a FIFO: the digest does not hang (the run will say why).
+        let image = case_dir.join(&case.file.views[0].image);
+        std::fs::remove_file(&image).unwrap();
+        assert!(std::process::Command::new("mkfifo").arg(&image).status().is_ok_and(|s| s.success()));
+        assert_ne!(load().cells[0].case_files, cell.case_files);
         std::fs::remove_dir_all(&dir).ok();
     }
 

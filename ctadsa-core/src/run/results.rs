@@ -30,6 +30,12 @@ pub struct CellResult {
     /// versions that did not record it (taken as the case's).
     #[serde(default)]
     pub case_fingerprint: Option<String>,
+    /// The digest of the files it read from the case
+    /// ([`case_files_digest`](crate::run::experiment::case_files_digest)); a result on a view,
+    /// prior or ground truth since re-made is not this cell's. `None` in cells of versions that
+    /// did not record it (taken as the case's).
+    #[serde(default)]
+    pub case_files: Option<String>,
 }
 
 /// The cell columns of `results.csv` before the metrics.
@@ -171,6 +177,7 @@ pub fn parse_results_csv(text: &str, path: &Path) -> Result<Vec<CellResult>> {
             metrics,
             config_hash: None,
             case_fingerprint: None,
+            case_files: None,
         });
     }
     Ok(results)
@@ -247,6 +254,7 @@ pub(crate) mod tests {
             metrics: BTreeMap::from([("roi_cd_sum_mm".to_string(), cd_roi)]),
             config_hash: None,
             case_fingerprint: None,
+            case_files: None,
         }
     }
 

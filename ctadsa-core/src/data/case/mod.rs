@@ -47,6 +47,24 @@ pub fn fnv1a(state: u64, bytes: &[u8]) -> u64 {
     bytes.iter().fold(state, |h, &b| (h ^ b as u64).wrapping_mul(0x0100_0000_01b3))
 }
 
+/// FNV-1a continued from `state` over the bytes of the file at `path`, read in blocks; returns
+/// the new state and the file's length (bytes). Only a regular file of at most
+/// [`MAX_INPUT_BYTES`](crate::error::MAX_INPUT_BYTES) is read (as [`read_file`] does).
+pub fn fnv1a_file(state: u64, path: &Path) -> Result<(u64, u64)> {
+    use std::io::Read as _;
+    let limit = crate::error::check_input_file(path)?;
+    let mut file = std::fs::File::open(path).map_err(|e| CoreError::io(path, e))?.take(limit);
+    let (mut state, mut bytes, mut block) = (state, 0u64, vec![0u8; 1 << 20]);
+    loop {
+        let n = file.read(&mut block).map_err(|e| CoreError::io(path, e))?;
+        if n == 0 {
+            return Ok((state, bytes));
+        }
+        state = fnv1a(state, &block[..n]);
+        bytes += n as u64;
+    }
+}
+
 /// Where the data came from.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]

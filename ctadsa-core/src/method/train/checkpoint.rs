@@ -9,7 +9,7 @@ use burn::tensor::{Device, Tensor, TensorData};
 use serde::{Deserialize, Serialize};
 
 use crate::config::Config;
-use crate::data::case::{Case, FNV1A_START, fnv1a};
+use crate::data::case::{Case, FNV1A_START, fnv1a_file};
 use crate::data::volume::BoxMm;
 use crate::error::{CoreError, Result, read_file, to_json, write_file};
 use crate::method::densify::DensifyStats;
@@ -54,17 +54,7 @@ struct FileDigest {
 impl FileDigest {
     /// The digest of the file at `path`, read in blocks.
     fn of(path: &Path) -> Result<Self> {
-        use std::io::Read as _;
-        let mut file = std::fs::File::open(path).map_err(|e| CoreError::io(path, e))?;
-        let (mut state, mut bytes, mut block) = (FNV1A_START, 0u64, vec![0u8; 1 << 20]);
-        loop {
-            let n = file.read(&mut block).map_err(|e| CoreError::io(path, e))?;
-            if n == 0 {
-                break;
-            }
-            state = fnv1a(state, &block[..n]);
-            bytes += n as u64;
-        }
+        let (state, bytes) = fnv1a_file(FNV1A_START, path)?;
         Ok(Self { bytes, fnv1a: format!("{state:016x}") })
     }
 }
