@@ -49,15 +49,21 @@ pub struct ExperimentArgs {
 pub fn run(args: ExperimentArgs) -> Result<()> {
     let exp = Experiment::load(&args.matrix, &args.cases, &args.out, &args.overrides)?;
     if args.list {
+        use std::io::Write as _;
+        let mut out = std::io::stdout().lock();
         for (i, cell) in exp.cells.iter().enumerate() {
             let state = if cell.finished().is_some() {
                 "done"
             } else if cell.stale() {
-                "stale (its cell.json is of another configuration or unreadable: runs again)"
+                "stale (its cell.json is of another configuration or case, or unreadable: runs again)"
             } else {
                 "todo"
             };
-            println!("{i}\t{state}\t{}\t{}", cell.label(), cell.dir.display());
+            match writeln!(out, "{i}\t{state}\t{}\t{}", cell.label(), cell.dir.display()) {
+                // The reader has what it wanted (`--list | head`).
+                Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => return Ok(()),
+                other => other?,
+            }
         }
         return Ok(());
     }

@@ -734,4 +734,22 @@ fn malformed_experiment_names_do_not_escape() {
         &["experiment", "--matrix", "huge.toml", "--cases", &case, "--out", "out/m", "--list"],
         &["huge.toml", "1000000 cells", "at most 100000"],
     );
+    // `--list | head -1`: the reader leaves after one line; the listing stops quietly.
+    let methods =
+        (0..300).map(|i| format!("[[methods]]\nname = \"m{i}\"\nconfig = \"{config}\"\n")).collect::<String>();
+    std::fs::write(
+        dir.join("long.toml"),
+        format!("views = [[0, 1], [0, 2], [1, 2]]\npriors = []\nset = []\n{methods}"),
+    )
+    .unwrap();
+    let out = Command::new("sh")
+        .current_dir(&dir)
+        .env("RUST_BACKTRACE", "0")
+        .arg("-c")
+        .arg(format!("'{BIN}' experiment --matrix long.toml --cases '{case}' --out out/m --list | head -1"))
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(String::from_utf8_lossy(&out.stdout).starts_with("0\ttodo\t"), "{stderr}");
+    assert!(!stderr.contains("panicked") && !stderr.contains("Broken pipe"), "{stderr}");
 }
