@@ -116,26 +116,73 @@ fn run_unfinished(exp: &Experiment, backend: BackendKind, jobs: usize) -> Result
             }
         }
     } else {
-        let queue = Mutex::new(todo.into_iter());
-        let shared = Mutex::new(Vec::new());
-        std::thread::scope(|s| {
-            // No more threads than cells to run.
-            for _ in 0..jobs.min(queue.lock().expect("no poisoned lock").len()) {
-                s.spawn(|| {
-                    while let Some(i) = queue.lock().expect("no poisoned lock").next() {
-                        let cell = &exp.cells[i];
-                        eprintln!("cell {}/{}: {}", i + 1, exp.cells.len(), cell.label());
-                        if let Err(e) = exp.run_cell(i, device.clone(), &mut Silent) {
-                            shared.lock().expect("no poisoned lock").push(format!("{}: {e:#}", cell.dir.display()));
-                        }
-                    }
-                });
-            }
+        failures = in_parallel(todo, jobs, |i| {
+            let cell = &exp.cells[i];
+            eprintln!("cell {}/{}: {}", i + 1, exp.cells.len(), cell.label());
+            exp.run_cell(i, device.clone(), &mut Silent).err().map(|e| format!("{}: {e:#}", cell.dir.display()))
         });
-        failures = shared.into_inner().expect("no poisoned lock");
     }
     if !failures.is_empty() {
         bail!("{} cell(s) failed (finished cells are kept; rerun to retry):\n{}", failures.len(), failures.join("\n"));
     }
     Ok(())
+}
+
+/// Calls `work` on every item, `jobs` at a time on as many threads (no more than there are
+/// items), each thread taking the next item as it finishes one; returns what the calls
+/// returned (`Some`: a failure), in the order they finished.
+fn in_parallel<F>(items: Vec<usize>, jobs: usize, work: F) -> Vec<String>
+where
+    F: Fn(usize) -> Option<String> + Sync,
+{
+    let threads = jobs.min(items.len());
+    let queue = Mutex::new(items.into_iter());
+    let failures = Mutex::new(Vec::new());
+    std::thread::scope(|s| {
+        for _ in 0..threads {
+            s.spawn(|| {
+                loop {
+                    // The queue is locked only to take an item, never while one is worked on.
+                    let next = queue.lock().expect("no poisoned lock").next();
+                    let Some(i) = next else { break };
+                    if let Some(failure) = work(i) {
+                        failures.lock().expect("no poisoned lock").push(failure);
+                    }
+                }
+            });
+        }
+    });
+    failures.into_inner().expect("no poisoned lock")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    use std::time::{Duration, Instant};
+
+    /// `--jobs 2` works on two cells at once: each call waits (up to 10 s) until the other
+    /// worker has started one too, so one worker at a time would record a most of 1.
+    #[test]
+    fn jobs_run_at_the_same_time_and_every_item_once() {
+        let (active, most, done) = (AtomicUsize::new(0), AtomicUsize::new(0), Mutex::new(Vec::new()));
+        let failures = in_parallel((0..6).collect(), 2, |i| {
+            let now = active.fetch_add(1, Ordering::SeqCst) + 1;
+            most.fetch_max(now, Ordering::SeqCst);
+            let start = Instant::now();
+            while most.load(Ordering::SeqCst) < 2 && start.elapsed() < Duration::from_secs(10) {
+                std::thread::sleep(Duration::from_millis(1));
+            }
+            active.fetch_sub(1, Ordering::SeqCst);
+            done.lock().unwrap().push(i);
+            (i % 3 == 0).then(|| format!("item {i}"))
+        });
+        assert_eq!(most.load(Ordering::SeqCst), 2, "the workers took turns instead of working at once");
+        let mut done = done.into_inner().unwrap();
+        done.sort();
+        assert_eq!(done, (0..6).collect::<Vec<_>>());
+        let mut failures = failures;
+        failures.sort();
+        assert_eq!(failures, ["item 0", "item 3"]);
+    }
 }
