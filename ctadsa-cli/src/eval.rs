@@ -3,11 +3,12 @@
 
 use std::path::PathBuf;
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use clap::Args;
 use ctadsa_core::data::mesh::io::read_mesh;
 use ctadsa_core::data::tree::prior::split_by_diameter;
 use ctadsa_core::data::tree::swc::read_swc;
+use ctadsa_core::error::write_file;
 use ctadsa_core::eval::metrics::{RegionScores, SurfaceScores};
 use ctadsa_core::eval::score::{EvalOptions, EvalReport, evaluate_files};
 use ctadsa_core::eval::topology::topology_of_surfaces;
@@ -152,7 +153,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
     }
     let json = serde_json::to_string_pretty(&value)?;
     match &args.json {
-        Some(path) => std::fs::write(path, json).with_context(|| format!("cannot write {}", path.display()))?,
+        Some(path) => write_file(path, json.as_bytes())?,
         None => println!("\n{json}"),
     }
     Ok(())

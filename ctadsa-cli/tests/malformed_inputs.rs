@@ -171,6 +171,19 @@ fn out_of_range_flags_are_refused_naming_the_flag() {
         &["eval", "--pred", "tri.obj", "--gt", "tri.obj", "--min-island-mm2", "1e9"],
         &["tri.obj", "min_island_mm2"],
     );
+    // --json into a folder not there yet: made, and the scores written whole, atomically (it
+    // failed after scoring: no such folder).
+    let out = Command::new(BIN)
+        .current_dir(&dir)
+        .args(["eval", "--pred", "tri.obj", "--gt", "tri.obj", "--json", "out/eval/scores.json"])
+        .env("RUST_BACKTRACE", "0")
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.join("out/eval/scores.json")).unwrap()).unwrap();
+    assert!(json["scores"].is_object(), "{json}");
+    assert_eq!(std::fs::read_dir(dir.join("out/eval")).unwrap().count(), 1, "no temporary left");
 }
 
 #[test]

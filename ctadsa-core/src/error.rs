@@ -85,16 +85,34 @@ pub fn check_input_file(path: &Path) -> Result<u64> {
 
 /// Writes a whole file atomically (creating parent folders), naming it on failure: the bytes go
 /// to a temporary file beside it, which is then renamed over `path`, so a reader (or a run killed
-/// meanwhile) sees the old file or the new one, never half of one.
+/// meanwhile) sees the old file or the new one, never half of one. Each write has a temporary of
+/// its own (created exclusively, its name from the process, a per-process count and the clock),
+/// so writers of one path in two threads, or in two processes of the same id on two nodes of a
+/// shared file system, never write into each other's; the last rename wins.
 pub fn write_file(path: &Path, bytes: &[u8]) -> Result<()> {
+    use std::io::Write as _;
+    use std::sync::atomic::{AtomicU64, Ordering};
+    static WRITES: AtomicU64 = AtomicU64::new(0);
     if let Some(parent) = path.parent()
         && !parent.as_os_str().is_empty()
     {
         std::fs::create_dir_all(parent).map_err(|e| CoreError::io(parent, e))?;
     }
     let name = path.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default();
-    let tmp = path.with_file_name(format!(".{name}.tmp-{}", std::process::id()));
-    let written = std::fs::write(&tmp, bytes).and_then(|()| std::fs::rename(&tmp, path));
+    let (tmp, mut file) = loop {
+        let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.subsec_nanos());
+        let count = WRITES.fetch_add(1, Ordering::Relaxed);
+        let tmp = path.with_file_name(format!(".{name}.tmp-{}-{count}-{nanos}", std::process::id()));
+        match std::fs::OpenOptions::new().write(true).create_new(true).open(&tmp) {
+            Ok(file) => break (tmp, file),
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
+            Err(e) => return Err(CoreError::io(path, e)),
+        }
+    };
+    let written = file.write_all(bytes).and_then(|()| {
+        drop(file);
+        std::fs::rename(&tmp, path)
+    });
     written.map_err(|e| {
         let _ = std::fs::remove_file(&tmp);
         CoreError::io(path, e)
@@ -159,6 +177,28 @@ mod tests {
         assert_eq!(std::fs::read(&path).unwrap(), b"second");
         let names: Vec<_> = std::fs::read_dir(dir.join("sub")).unwrap().map(|e| e.unwrap().file_name()).collect();
         assert_eq!(names.len(), 1, "only the file itself: {names:?}");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn writers_of_one_path_at_once_never_mix_their_bytes() {
+        let dir = std::env::temp_dir().join(format!("ctadsa-write-race-{}", std::process::id()));
+        let path = dir.join("results.csv");
+        let contents: Vec<Vec<u8>> = (0..4u8).map(|t| vec![b'a' + t; 200_000]).collect();
+        std::thread::scope(|scope| {
+            for bytes in &contents {
+                let path = &path;
+                scope.spawn(move || {
+                    for _ in 0..25 {
+                        write_file(path, bytes).expect("every write succeeds");
+                    }
+                });
+            }
+        });
+        let last = std::fs::read(&path).unwrap();
+        assert!(contents.contains(&last), "the file is one writer's bytes, whole");
+        let names: Vec<_> = std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().file_name()).collect();
+        assert_eq!(names.len(), 1, "no temporary left behind: {names:?}");
         let _ = std::fs::remove_dir_all(&dir);
     }
 }
