@@ -85,12 +85,23 @@ pub fn check_input_file(path: &Path) -> Result<u64> {
 
 /// Writes a whole file atomically (creating parent folders), naming it on failure: the bytes go
 /// to a temporary file beside it, which is then renamed over `path`, so a reader (or a run killed
-/// meanwhile) sees the old file or the new one, never half of one. Each write has a temporary of
-/// its own (created exclusively, its name from the process, a per-process count and the clock),
-/// so writers of one path in two threads, or in two processes of the same id on two nodes of a
-/// shared file system, never write into each other's; the last rename wins.
+/// meanwhile) sees the old file or the new one, never half of one.
 pub fn write_file(path: &Path, bytes: &[u8]) -> Result<()> {
-    use std::io::Write as _;
+    let name = path.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default();
+    write_through_temporary(path, &name, |tmp| std::fs::write(tmp, bytes).map_err(|e| CoreError::io(path, e)))
+}
+
+/// Makes `path` atomically (creating parent folders): `write` fills a temporary file beside it,
+/// which is then renamed over `path` (on failure the temporary is removed). Each call has a
+/// temporary of its own, created exclusively, named from the process, a per-process count and
+/// the clock, then `.` and `suffix` (for writers that choose a format by the name's ending), so
+/// writers of one path in two threads, or in two processes of the same id on two nodes of a
+/// shared file system, never write into each other's; the last rename wins.
+pub(crate) fn write_through_temporary(
+    path: &Path,
+    suffix: &str,
+    write: impl FnOnce(&Path) -> Result<()>,
+) -> Result<()> {
     use std::sync::atomic::{AtomicU64, Ordering};
     static WRITES: AtomicU64 = AtomicU64::new(0);
     if let Some(parent) = path.parent()
@@ -98,25 +109,21 @@ pub fn write_file(path: &Path, bytes: &[u8]) -> Result<()> {
     {
         std::fs::create_dir_all(parent).map_err(|e| CoreError::io(parent, e))?;
     }
-    let name = path.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default();
-    let (tmp, mut file) = loop {
+    let tmp = loop {
         let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.subsec_nanos());
         let count = WRITES.fetch_add(1, Ordering::Relaxed);
-        let tmp = path.with_file_name(format!(".{name}.tmp-{}-{count}-{nanos}", std::process::id()));
+        let tmp = path.with_file_name(format!(".tmp-{}-{count}-{nanos}.{suffix}", std::process::id()));
         match std::fs::OpenOptions::new().write(true).create_new(true).open(&tmp) {
-            Ok(file) => break (tmp, file),
+            Ok(_) => break tmp,
             Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
             Err(e) => return Err(CoreError::io(path, e)),
         }
     };
-    let written = file.write_all(bytes).and_then(|()| {
-        drop(file);
-        std::fs::rename(&tmp, path)
-    });
-    written.map_err(|e| {
+    let written = write(&tmp).and_then(|()| std::fs::rename(&tmp, path).map_err(|e| CoreError::io(path, e)));
+    if written.is_err() {
         let _ = std::fs::remove_file(&tmp);
-        CoreError::io(path, e)
-    })
+    }
+    written
 }
 
 /// Removes a file or a whole folder if it is there, naming it on failure.

@@ -8,7 +8,7 @@ use dicom_core::{DataElement, PrimitiveValue, Tag, VR};
 use dicom_dictionary_std::{tags, uids};
 use dicom_object::{DefaultDicomObject, FileMetaTableBuilder, InMemDicomObject, open_file};
 
-use crate::error::{CoreError, Result};
+use crate::error::{CoreError, Result, write_through_temporary};
 
 /// The C-arm geometry of a run, as the DICOM positioner tags give it.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -360,7 +360,7 @@ pub fn derived_uid(parts: &[&[u8]]) -> String {
 }
 
 /// Writes a multi-frame XA file (explicit VR little endian, 16-bit unsigned) — for tests and for
-/// exporting synthetic runs to tools that read DICOM.
+/// exporting synthetic runs to tools that read DICOM; atomically (a temporary beside it, renamed).
 pub fn write_xa_run(path: &Path, spec: &XaRunSpec) -> Result<()> {
     let ds = |v: f64| PrimitiveValue::from(format!("{v}"));
     let pixel_bytes: Vec<u8> = spec.frames.iter().flatten().flat_map(|v| v.to_le_bytes()).collect();
@@ -460,8 +460,7 @@ pub fn write_xa_run(path: &Path, spec: &XaRunSpec) -> Result<()> {
     let file = obj
         .with_meta(FileMetaTableBuilder::new().transfer_syntax(uids::EXPLICIT_VR_LITTLE_ENDIAN))
         .map_err(|e| CoreError::format(path, format!("cannot build DICOM meta: {e}")))?;
-    if let Some(dir) = path.parent() {
-        std::fs::create_dir_all(dir).map_err(|e| CoreError::io(dir, e))?;
-    }
-    file.write_to_file(path).map_err(|e| CoreError::format(path, format!("cannot write DICOM: {e}")))
+    write_through_temporary(path, "dcm", |tmp| {
+        file.write_to_file(tmp).map_err(|e| CoreError::format(path, format!("cannot write DICOM: {e}")))
+    })
 }

@@ -11,7 +11,7 @@ use ndarray::Array3;
 use nifti::{IntoNdArray, NiftiHeader, NiftiObject, ReaderOptions, writer::WriterOptions};
 
 use super::{Grid, Volume};
-use crate::error::{CoreError, Result};
+use crate::error::{CoreError, Result, write_through_temporary};
 
 /// NIfTI datatype codes of scalar voxels (u8, i16, i32, f32, f64, i8, u16, u32, i64, u64).
 const SCALAR_DATATYPES: [i16; 10] = [2, 4, 8, 16, 64, 256, 512, 768, 1024, 1280];
@@ -168,22 +168,32 @@ fn header_for(grid: &Grid, index_to_world: &DMat4, description: &str) -> NiftiHe
     h
 }
 
-/// Writes a volume as NIfTI-1 (gzip-compressed when the name ends in `.gz`).
+/// Writes a volume as a single-file NIfTI-1, `.nii` or (gzip-compressed) `.nii.gz`, atomically
+/// (a temporary beside it, then renamed).
 pub fn write_nifti<T>(path: &Path, volume: &Volume<T>, description: &str) -> Result<()>
 where
     T: nifti::DataElement + bytemuck::Pod + Copy,
 {
-    if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
-        std::fs::create_dir_all(parent).map_err(|e| CoreError::io(parent, e))?;
-    }
+    let name = path.file_name().map(|n| n.to_string_lossy().to_lowercase()).unwrap_or_default();
+    // The temporary's name is `.tmp-<unique>.nii[.gz]`: the NIfTI writer picks compression by
+    // the ending and replaces the last extension left after stripping one, so no other dots.
+    let suffix = if name.ends_with(".nii.gz") {
+        "nii.gz"
+    } else if name.ends_with(".nii") {
+        "nii"
+    } else {
+        return Err(CoreError::format(path, "a NIfTI volume is written as .nii or .nii.gz".to_string()));
+    };
     let [nx, ny, nz] = volume.grid.dims;
     let array = Array3::from_shape_vec((nx, ny, nz), volume.data.clone())
         .map_err(|e| CoreError::invalid(format!("volume data does not match its grid: {e}")))?;
     let header = header_for(&volume.grid, &volume.index_to_world, description);
-    WriterOptions::new(path)
-        .reference_header(&header)
-        .write_nifti(&array)
-        .map_err(|e| CoreError::format(path, format!("cannot write NIfTI: {e}")))
+    write_through_temporary(path, suffix, |tmp| {
+        WriterOptions::new(tmp)
+            .reference_header(&header)
+            .write_nifti(&array)
+            .map_err(|e| CoreError::format(path, format!("cannot write NIfTI: {e}")))
+    })
 }
 
 #[cfg(test)]
@@ -207,6 +217,16 @@ mod tests {
             assert!((back.grid.spacing_mm[a] - grid.spacing_mm[a]).abs() < 1e-6);
             assert!((back.grid.origin_mm[a] - grid.origin_mm[a]).abs() < 1e-5);
         }
+        let gz = std::fs::read(&path).unwrap();
+        assert_eq!(gz[..2], [0x1f, 0x8b], "compressed as its name says");
+        // A name with more dots (the NIfTI writer alone wrote `v.b.nii` to `v.nii`).
+        write_nifti(&dir.join("v.b.nii"), &v, "test").unwrap();
+        assert_eq!(read_nifti(&dir.join("v.b.nii")).unwrap().data, v.data);
+        let err = write_nifti(&dir.join("v.hdr"), &v, "test").unwrap_err().to_string();
+        assert!(err.contains("v.hdr") && err.contains(".nii.gz"), "{err}");
+        let mut names: Vec<_> = std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().file_name()).collect();
+        names.sort();
+        assert_eq!(names, ["v.b.nii", "v.nii.gz"], "no temporary, pair or renamed file left");
         std::fs::remove_dir_all(dir).ok();
     }
 
