@@ -480,7 +480,8 @@ impl Experiment {
                     series.push(Series { name: format!("{} {}v", m.name, v), points: pts, rgb });
                 }
             }
-            line_plot(&self.out.join(file), label, "prior threshold (mm)", label, &series, false)?;
+            let title = format!("{label}: mean over the cases, per method and view count");
+            line_plot(&self.out.join(file), &title, "prior threshold (mm)", label, &series, false)?;
         }
         Ok(())
     }
