@@ -34,7 +34,9 @@ fn bench_row(case: &Path, paper: bool, sets: &[&str], steps: usize, backend: Bac
 }
 
 pub fn train_suite(steps: usize, threads: usize, backend: BackendKind) -> Result<()> {
-    let dir = std::env::temp_dir().join(format!("ctadsa-bench-suite-{}", std::process::id()));
+    // Removed when dropped, on an error too; a fresh name per run.
+    let work = tempfile::Builder::new().prefix("ctadsa-bench-suite-").tempdir()?;
+    let dir = work.path();
     let (demo, wide) = (dir.join("demo-case"), dir.join("case-512"));
     eprintln!("synthesising the demo case and a 512² variant into {}", dir.display());
     let demo_cfg = SynthConfig::demo();
@@ -71,6 +73,5 @@ pub fn train_suite(steps: usize, threads: usize, backend: BackendKind) -> Result
         table += &format!("| {name} | {} | {rss} |\n", cells.join(" | "));
     }
     println!("{table}");
-    std::fs::remove_dir_all(&dir).ok();
     Ok(())
 }

@@ -177,19 +177,20 @@ mod tests {
 
     #[test]
     fn write_file_replaces_atomically_and_leaves_no_temporary() {
-        let dir = std::env::temp_dir().join(format!("ctadsa-write-{}", std::process::id()));
+        let temp = tempfile::tempdir().unwrap();
+        let dir = temp.path().to_path_buf();
         let path = dir.join("sub/out.json");
         write_file(&path, b"first").unwrap();
         write_file(&path, b"second").unwrap();
         assert_eq!(std::fs::read(&path).unwrap(), b"second");
         let names: Vec<_> = std::fs::read_dir(dir.join("sub")).unwrap().map(|e| e.unwrap().file_name()).collect();
         assert_eq!(names.len(), 1, "only the file itself: {names:?}");
-        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]
     fn writers_of_one_path_at_once_never_mix_their_bytes() {
-        let dir = std::env::temp_dir().join(format!("ctadsa-write-race-{}", std::process::id()));
+        let temp = tempfile::tempdir().unwrap();
+        let dir = temp.path().to_path_buf();
         let path = dir.join("results.csv");
         let contents: Vec<Vec<u8>> = (0..4u8).map(|t| vec![b'a' + t; 200_000]).collect();
         std::thread::scope(|scope| {
@@ -206,6 +207,5 @@ mod tests {
         assert!(contents.contains(&last), "the file is one writer's bytes, whole");
         let names: Vec<_> = std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().file_name()).collect();
         assert_eq!(names.len(), 1, "no temporary left behind: {names:?}");
-        let _ = std::fs::remove_dir_all(&dir);
     }
 }

@@ -114,8 +114,8 @@ fn agrees_with_plastimatch_drr_per_pixel() {
     for (a, b) in vol.data.iter_mut().zip(&second.data) {
         *a = (*a + 2.0 * *b).min(2.0);
     }
-    let dir = std::env::temp_dir().join(format!("ctadsa-plastimatch-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let temp = tempfile::tempdir().unwrap();
+    let dir = temp.path().to_path_buf();
     let mha = dir.join("v.mha");
     ctadsa_core::bench::plastimatch::write_mha(&mha, &vol).unwrap();
     for angle in [-90.0f64, 0.0, -45.0] {
@@ -168,5 +168,4 @@ fn agrees_with_plastimatch_drr_per_pixel() {
         println!("angle {angle}: worst per-pixel relative difference {worst:.2e} (pixels above 10% of the max)");
         assert!(worst < 0.01, "angle {angle}: ours and plastimatch differ by {worst:.3} somewhere");
     }
-    std::fs::remove_dir_all(dir).ok();
 }

@@ -131,8 +131,8 @@ mod tests {
 
     #[test]
     fn pfm_reads_back_and_short_files_are_refused() {
-        let dir = std::env::temp_dir().join(format!("ctadsa-pfm-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let temp = tempfile::tempdir().unwrap();
+        let dir = temp.path().to_path_buf();
         let path = dir.join("a.pfm");
         let mut bytes = b"Pf\n2 1\n-1.0\n".to_vec();
         bytes.extend(1.5f32.to_le_bytes());
@@ -145,6 +145,5 @@ mod tests {
         assert!(read_pfm(&path).is_err());
         std::fs::write(&path, b"Pf\n").unwrap();
         assert!(read_pfm(&path).is_err());
-        let _ = std::fs::remove_dir_all(&dir);
     }
 }

@@ -158,15 +158,19 @@ fn render_peers(host: &HostGaussians, size: u32, k: f32, image: &[f32]) -> Resul
 
 /// plastimatch's DRRs of `volume` for `geometries`, one after another, and their summed time.
 fn plastimatch_images(volume: &Volume<f32>, geometries: &[TigreGeometry]) -> Result<Option<(Vec<f32>, f64)>> {
-    let work = std::env::temp_dir().join(format!("ctadsa-bench-peers-{}", std::process::id()));
-    std::fs::create_dir_all(&work).map_err(|e| CoreError::io(&work, e))?;
+    // Removed when dropped, on an error too; a fresh name per call.
+    let temp = tempfile::Builder::new()
+        .prefix("ctadsa-bench-peers-")
+        .tempdir()
+        .map_err(|e| CoreError::io(&std::env::temp_dir(), e))?;
+    let work = temp.path();
     let mha = work.join("volume.mha");
     write_mha(&mha, volume)?;
     let mut images = Vec::new();
     let mut seconds = 0.0;
     let mut all = true;
     for g in geometries {
-        match plastimatch_drr(&mha, g, &work)? {
+        match plastimatch_drr(&mha, g, work)? {
             Some((image, s)) => {
                 images.extend(image);
                 seconds += s;
@@ -177,7 +181,6 @@ fn plastimatch_images(volume: &Volume<f32>, geometries: &[TigreGeometry]) -> Res
             }
         }
     }
-    std::fs::remove_dir_all(&work).ok();
     Ok(all.then_some((images, seconds)))
 }
 

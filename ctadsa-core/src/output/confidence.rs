@@ -622,7 +622,8 @@ mod tests {
 
     #[test]
     fn the_mesh_confidence_ply_reads_back() {
-        let dir = std::env::temp_dir().join(format!("ctadsa-confidence-{}", std::process::id()));
+        let temp = tempfile::tempdir().unwrap();
+        let dir = temp.path().to_path_buf();
         let mesh = TriMesh {
             vertices: vec![DVec3::ZERO, DVec3::new(1.0, 0.0, 0.0), DVec3::new(0.0, 5.0, 0.0)],
             faces: vec![[0, 1, 2]],
@@ -637,7 +638,6 @@ mod tests {
         assert_eq!(c, vec![0.0, 0.0, 1.0]);
         std::fs::write(&path, b"ply\nend_header\n").unwrap();
         assert!(read_mesh_confidence(&path).unwrap_err().to_string().contains(MESH_CONFIDENCE));
-        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]

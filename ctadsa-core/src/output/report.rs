@@ -497,8 +497,8 @@ mod tests {
     /// unescaped.
     #[test]
     fn markup_in_a_summary_is_escaped() {
-        let dir = std::env::temp_dir().join(format!("ctadsa-report-inject-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let temp = tempfile::tempdir().unwrap();
+        let dir = temp.path().to_path_buf();
         let evil = "<script>alert(1)</script><img src=x onerror=alert(2)>";
         let summary = serde_json::json!({
             "case_dir": evil,
@@ -523,14 +523,13 @@ mod tests {
         assert!(page.contains("&lt;script&gt;alert(1)"), "the value is shown, escaped");
         // The page's own scripts: only the one that counts decoded images.
         assert_eq!(page.matches("<script").count(), 1, "one script of the page's own");
-        std::fs::remove_dir_all(&dir).ok();
     }
 
     /// Each view's arrival map reading appears with its noise in percent and the median it got.
     #[test]
     fn arrival_readings_are_shown_per_view() {
-        let dir = std::env::temp_dir().join(format!("ctadsa-report-arrival-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let temp = tempfile::tempdir().unwrap();
+        let dir = temp.path().to_path_buf();
         let summary = serde_json::json!({
             "arrival_readings": [{"view": "ap", "noise": 0.018, "median_px": 0}, {"view": "lat", "noise": 0.3125, "median_px": 1}],
         });
@@ -538,15 +537,14 @@ mod tests {
         let page = std::fs::read_to_string(write_report(&dir).unwrap().path).unwrap();
         assert!(page.contains("<tr><td>ap</td><td>1.8 %</td><td>as it is</td></tr>"), "{page}");
         assert!(page.contains("<tr><td>lat</td><td>31.2 %</td><td>through a 3 × 3 median</td></tr>"), "{page}");
-        std::fs::remove_dir_all(&dir).ok();
     }
 
     /// A file the page would show that is present but unreadable (a damaged mesh) is named at
     /// the top of the page and in `left_out`, instead of its part silently missing.
     #[test]
     fn unreadable_parts_are_named_not_silently_dropped() {
-        let dir = std::env::temp_dir().join(format!("ctadsa-report-left-out-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let temp = tempfile::tempdir().unwrap();
+        let dir = temp.path().to_path_buf();
         std::fs::write(dir.join("summary.json"), serde_json::json!({"iterations": 3}).to_string()).unwrap();
         std::fs::write(dir.join("mesh.obj"), "v 1 2\nf 1 2 3\n").unwrap();
         let written = write_report(&dir).unwrap();
@@ -560,6 +558,5 @@ mod tests {
         assert!(err.contains("is not a finished run folder") && err.contains(dir.to_str().unwrap()), "{err}");
         let err = write_report(&dir.join("nowhere")).unwrap_err().to_string();
         assert!(err.contains("does not exist") && err.contains("nowhere"), "{err}");
-        std::fs::remove_dir_all(&dir).ok();
     }
 }

@@ -504,8 +504,8 @@ mod tests {
     /// live process is refused to a second one, a dead process's lock is taken over.
     #[test]
     fn duplicate_cells_stale_results_and_locks() {
-        let dir = std::env::temp_dir().join(format!("ctadsa-matrix-dup-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let temp = tempfile::tempdir().unwrap();
+        let dir = temp.path().to_path_buf();
         let config = concat!(env!("CARGO_MANIFEST_DIR"), "/../configs/quick.toml");
         let write = |name: &str, text: String| {
             let p = dir.join(name);
@@ -556,15 +556,14 @@ mod tests {
         }
         assert!(cell.finished().is_none(), "a FIFO is not a result");
         assert!(FolderLock::take(&cell.dir, CELL_LOCK, "the cell").is_err(), "a FIFO lock is nobody's stale lock");
-        std::fs::remove_dir_all(&dir).ok();
     }
 
     /// A cell's result is its own only on the case it ran on: re-making the case (another
     /// `synth` into the same folder) or a file it reads makes the finished cell stale.
     #[test]
     fn results_on_a_case_since_remade_are_stale() {
-        let dir = std::env::temp_dir().join(format!("ctadsa-matrix-case-{}", std::process::id()));
-        std::fs::remove_dir_all(&dir).ok();
+        let temp = tempfile::tempdir().unwrap();
+        let dir = temp.path().to_path_buf();
         let case_dir = dir.join("cases/C");
         crate::data::synth::synthesize(&crate::data::synth::SynthConfig::small_procedural("C"), &case_dir, &mut |_| {})
             .unwrap();
@@ -614,17 +613,15 @@ mod tests {
         std::fs::remove_file(&image).unwrap();
         assert!(std::process::Command::new("mkfifo").arg(&image).status().is_ok_and(|s| s.success()));
         assert_ne!(load().cells[0].case_files, cell.case_files);
-        std::fs::remove_dir_all(&dir).ok();
     }
 
     #[test]
     fn matrix_names_that_would_escape_the_output_folder_are_refused() {
-        let dir = std::env::temp_dir().join(format!("ctadsa-matrix-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let temp = tempfile::tempdir().unwrap();
+        let dir = temp.path().to_path_buf();
         let path = dir.join("m.toml");
         std::fs::write(&path, "views = [[0, 1]]\n[[methods]]\nname = \"../up\"\nconfig = \"c.toml\"\n").unwrap();
         let err = Experiment::load(&path, &[], &dir.join("out"), &[]).unwrap_err().to_string();
         assert!(err.contains("m.toml") && err.contains("method name"), "{err}");
-        std::fs::remove_dir_all(&dir).ok();
     }
 }

@@ -140,8 +140,8 @@ mod tests {
 
     #[test]
     fn one_holder_at_a_time_and_left_locks_are_taken_over() {
-        let dir = std::env::temp_dir().join(format!("ctadsa-lock-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
+        let temp = tempfile::tempdir().unwrap();
+        let dir = temp.path().to_path_buf();
         let lock = FolderLock::take(&dir, "x.lock", "the folder").unwrap();
         let err = FolderLock::take(&dir, "x.lock", "the folder").unwrap_err().to_string();
         assert!(err.contains("the folder is being run by pid") && err.contains("x.lock"), "{err}");
@@ -177,6 +177,5 @@ mod tests {
         assert!(FolderLock::take(&dir, "x.lock", "the folder").is_err());
         set_age(STALE_AFTER * 2);
         drop(FolderLock::take(&dir, "x.lock", "the folder").expect("an old empty lock is taken over"));
-        let _ = std::fs::remove_dir_all(&dir);
     }
 }

@@ -251,7 +251,8 @@ mod tests {
 
     #[test]
     fn tiff_is_exact_and_png16_is_scaled() {
-        let dir = std::env::temp_dir().join(format!("ctadsa-img-{}", std::process::id()));
+        let temp = tempfile::tempdir().unwrap();
+        let dir = temp.path().to_path_buf();
         let img = Image { width: 3, height: 2, data: vec![0.0, 1.5, 2.25, 1e-7, 3.0, 0.75] };
         write_tiff_f32(&dir.join("a.tiff"), &img).unwrap();
         assert_eq!(read_image(&dir.join("a.tiff"), None).unwrap(), img);
@@ -265,7 +266,6 @@ mod tests {
         write_tiff_f32(&dir.join("nan.tiff"), &nan).unwrap();
         let err = read_image(&dir.join("nan.tiff"), None).unwrap_err().to_string();
         assert!(err.contains("nan.tiff") && err.contains("column 1"), "{err}");
-        std::fs::remove_dir_all(dir).ok();
     }
 
     /// A vessel 2 px wide along the rows, frame 4, pixel 8 of it detected as 5; a second vessel,

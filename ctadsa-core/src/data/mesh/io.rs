@@ -458,7 +458,8 @@ mod tests {
 
     #[test]
     fn round_trips_in_every_format() {
-        let dir = std::env::temp_dir().join(format!("ctadsa-mesh-{}", std::process::id()));
+        let temp = tempfile::tempdir().unwrap();
+        let dir = temp.path().to_path_buf();
         for ext in ["obj", "ply", "stl"] {
             let path = dir.join(format!("t.{ext}"));
             write_mesh(&path, &tetra()).unwrap();
@@ -467,7 +468,6 @@ mod tests {
             assert_eq!(back.open_edges(), 0, "{ext}");
             assert!((back.signed_volume_mm3() - tetra().signed_volume_mm3()).abs() < 1e-6, "{ext}");
         }
-        std::fs::remove_dir_all(dir).ok();
     }
 
     #[test]
@@ -477,14 +477,13 @@ mod tests {
         let m = parse_ply(ply).unwrap();
         assert_eq!(m.faces, vec![[0, 1, 2]]);
         assert!(parse_ply(b"ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nend_header\n1\n").is_err());
-        let dir = std::env::temp_dir().join(format!("ctadsa-mesh-bad-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let temp = tempfile::tempdir().unwrap();
+        let dir = temp.path().to_path_buf();
         let bad = dir.join("bad.obj");
         std::fs::write(&bad, "v 0 0 0\nf 1 2 3\n").unwrap();
         let err = read_mesh(&bad).unwrap_err().to_string();
         assert!(err.contains("bad.obj"), "{err}");
         let missing = read_mesh(&dir.join("none.stl")).unwrap_err().to_string();
         assert!(missing.contains("none.stl"), "{missing}");
-        std::fs::remove_dir_all(dir).ok();
     }
 }

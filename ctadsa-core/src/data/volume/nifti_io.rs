@@ -207,7 +207,8 @@ mod tests {
         for (i, x) in v.data.iter_mut().enumerate() {
             *x = i as f32 * 0.25;
         }
-        let dir = std::env::temp_dir().join(format!("ctadsa-nifti-{}", std::process::id()));
+        let temp = tempfile::tempdir().unwrap();
+        let dir = temp.path().to_path_buf();
         let path = dir.join("v.nii.gz");
         write_nifti(&path, &v, "test").unwrap();
         let back = read_nifti(&path).unwrap();
@@ -227,19 +228,17 @@ mod tests {
         let mut names: Vec<_> = std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().file_name()).collect();
         names.sort();
         assert_eq!(names, ["v.b.nii", "v.nii.gz"], "no temporary, pair or renamed file left");
-        std::fs::remove_dir_all(dir).ok();
     }
 
     #[test]
     fn garbage_is_a_named_error() {
-        let dir = std::env::temp_dir().join(format!("ctadsa-nifti-bad-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let temp = tempfile::tempdir().unwrap();
+        let dir = temp.path().to_path_buf();
         let path = dir.join("bad.nii");
         std::fs::write(&path, b"not a nifti file at all").unwrap();
         let err = read_nifti(&path).unwrap_err().to_string();
         assert!(err.contains("bad.nii"), "{err}");
         let missing = read_nifti(&dir.join("missing.nii.gz")).unwrap_err().to_string();
         assert!(missing.contains("missing.nii.gz"), "{missing}");
-        std::fs::remove_dir_all(dir).ok();
     }
 }

@@ -446,7 +446,8 @@ mod tests {
 
     #[test]
     fn checkpoints_are_listed_newest_first_and_incomplete_ones_are_skipped() {
-        let dir = std::env::temp_dir().join(format!("ctadsa-ckpts-{}", std::process::id()));
+        let temp = tempfile::tempdir().unwrap();
+        let dir = temp.path().to_path_buf();
         for (name, complete) in [
             ("ckpt-0000100", true),
             ("ckpt-0000020", true),
@@ -466,6 +467,5 @@ mod tests {
         // the current one of its iteration.
         assert_eq!(names, [".ckpt-0000500.old-9", "ckpt-0000100", ".ckpt-0000100.old-9", "ckpt-0000020"]);
         assert!(Trainer::checkpoints(&dir.join("absent")).is_empty());
-        std::fs::remove_dir_all(&dir).ok();
     }
 }
