@@ -28,9 +28,15 @@ pub struct ExperimentArgs {
     /// Backend of every run.
     #[arg(long, value_enum, default_value = "ndarray")]
     backend: BackendKind,
-    /// Cells run at the same time, 1 to 256 (each run already uses every core for its kernels).
+    /// Cells run at the same time, 1 to 256, each on CPU kernel threads of its own
+    /// (`--threads-per-job`).
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=256))]
     jobs: u16,
+    /// CPU kernel threads of each cell when `--jobs` is over 1, 1 to 1,024; by default the
+    /// kernel threads there are (`RAYON_NUM_THREADS`, else one per core) shared out among the
+    /// jobs, at least one each.
+    #[arg(long, value_name = "T", value_parser = clap::value_parser!(u16).range(1..=1024))]
+    threads_per_job: Option<u16>,
     /// Overrides for every cell, after the matrix's own (repeatable).
     #[arg(long = "set")]
     overrides: Vec<String>,
@@ -46,7 +52,19 @@ pub struct ExperimentArgs {
     collect: bool,
 }
 
+/// The most kernel threads all jobs together may start (`--jobs` × `--threads-per-job`).
+const MAX_KERNEL_THREADS: usize = 4096;
+
 pub fn run(args: ExperimentArgs) -> Result<()> {
+    if let Some(threads) = args.threads_per_job {
+        let all = usize::from(args.jobs) * usize::from(threads);
+        if all > MAX_KERNEL_THREADS {
+            bail!(
+                "--jobs {} --threads-per-job {threads}: {all} kernel threads in all, at most {MAX_KERNEL_THREADS}",
+                args.jobs
+            );
+        }
+    }
     let exp = Experiment::load(&args.matrix, &args.cases, &args.out, &args.overrides)?;
     if args.list {
         use std::io::Write as _;
@@ -84,7 +102,10 @@ pub fn run(args: ExperimentArgs) -> Result<()> {
         };
     }
     if !args.collect {
-        run_unfinished(&exp, args.backend, usize::from(args.jobs))?;
+        let jobs = usize::from(args.jobs);
+        let threads =
+            args.threads_per_job.map_or_else(|| threads_per_job(rayon::current_num_threads(), jobs), usize::from);
+        run_unfinished(&exp, args.backend, jobs, threads)?;
     }
     let md = exp.collect()?;
     println!("\n{md}");
@@ -96,10 +117,17 @@ pub fn run(args: ExperimentArgs) -> Result<()> {
     Ok(())
 }
 
-/// Runs the unfinished cells, `jobs` at a time; failures are listed at the end. One at a time,
-/// a cell shows its progress bar and Ctrl-C / SIGTERM stop the experiment after saving the
-/// cell's checkpoint (the cell is redone on the next run).
-fn run_unfinished(exp: &Experiment, backend: BackendKind, jobs: usize) -> Result<()> {
+/// The kernel threads of each of `jobs` cells run at once: the `threads` there are shared out,
+/// at least one each.
+fn threads_per_job(threads: usize, jobs: usize) -> usize {
+    (threads / jobs.max(1)).max(1)
+}
+
+/// Runs the unfinished cells, `jobs` at a time, each on `threads` kernel threads of its own;
+/// failures are listed at the end. One at a time, a cell shows its progress bar and Ctrl-C /
+/// SIGTERM stop the experiment after saving the cell's checkpoint (the cell is redone on the
+/// next run).
+fn run_unfinished(exp: &Experiment, backend: BackendKind, jobs: usize, threads: usize) -> Result<()> {
     let todo: Vec<usize> = (0..exp.cells.len()).filter(|&i| exp.cells[i].finished().is_none()).collect();
     eprintln!("{} cells: {} done before, {} to run", exp.cells.len(), exp.cells.len() - todo.len(), todo.len());
     let device = backend.device()?.autodiff();
@@ -116,7 +144,8 @@ fn run_unfinished(exp: &Experiment, backend: BackendKind, jobs: usize) -> Result
             }
         }
     } else {
-        failures = in_parallel(todo, jobs, |i| {
+        eprintln!("{jobs} cells at a time, {threads} kernel thread(s) each");
+        failures = in_parallel(todo, jobs, threads, |i| {
             let cell = &exp.cells[i];
             eprintln!("cell {}/{}: {}", i + 1, exp.cells.len(), cell.label());
             exp.run_cell(i, device.clone(), &mut Silent).err().map(|e| format!("{}: {e:#}", cell.dir.display()))
@@ -128,25 +157,44 @@ fn run_unfinished(exp: &Experiment, backend: BackendKind, jobs: usize) -> Result
     Ok(())
 }
 
-/// Calls `work` on every item, `jobs` at a time on as many threads (no more than there are
-/// items), each thread taking the next item as it finishes one; returns what the calls
+/// Calls `work` on every item, `jobs` at a time on as many workers (no more than there are
+/// items), each worker taking the next item as it finishes one; returns what the calls
 /// returned (`Some`: a failure), in the order they finished.
-fn in_parallel<F>(items: Vec<usize>, jobs: usize, work: F) -> Vec<String>
+///
+/// Each worker runs its items inside a rayon pool of its own with `threads` threads, so the
+/// CPU kernels of one item never wait for another's: in rayon's one global pool the jobs'
+/// kernels queued for the same threads (with `RAYON_NUM_THREADS=1`, two jobs took turns on one
+/// thread and each ran at about half its speed).
+fn in_parallel<F>(items: Vec<usize>, jobs: usize, threads: usize, work: F) -> Vec<String>
 where
     F: Fn(usize) -> Option<String> + Sync,
 {
-    let threads = jobs.min(items.len());
+    let workers = jobs.min(items.len());
     let queue = Mutex::new(items.into_iter());
     let failures = Mutex::new(Vec::new());
+    let fail = |failure: String| failures.lock().expect("no poisoned lock").push(failure);
     std::thread::scope(|s| {
-        for _ in 0..threads {
-            s.spawn(|| {
+        for worker in 0..workers {
+            let (queue, work, fail) = (&queue, &work, &fail);
+            s.spawn(move || {
+                let pool = match rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .thread_name(move |t| format!("job-{worker}-kernel-{t}"))
+                    .build()
+                {
+                    Ok(pool) => pool,
+                    Err(e) => {
+                        return fail(format!(
+                            "job {worker}: no kernel threads ({e}); its cells were left to the other jobs"
+                        ));
+                    }
+                };
                 loop {
                     // The queue is locked only to take an item, never while one is worked on.
                     let next = queue.lock().expect("no poisoned lock").next();
                     let Some(i) = next else { break };
-                    if let Some(failure) = work(i) {
-                        failures.lock().expect("no poisoned lock").push(failure);
+                    if let Some(failure) = pool.install(|| work(i)) {
+                        fail(failure);
                     }
                 }
             });
@@ -161,19 +209,25 @@ mod tests {
     use std::sync::atomic::{AtomicUsize, Ordering};
     use std::time::{Duration, Instant};
 
-    /// `--jobs 2` works on two cells at once: each call waits (up to 10 s) until the other
-    /// worker has started one too, so one worker at a time would record a most of 1.
+    /// Marks one more call active, waits (up to 10 s) until `most` has seen two at once, and
+    /// marks it done.
+    fn wait_for_a_second(active: &AtomicUsize, most: &AtomicUsize) {
+        let now = active.fetch_add(1, Ordering::SeqCst) + 1;
+        most.fetch_max(now, Ordering::SeqCst);
+        let start = Instant::now();
+        while most.load(Ordering::SeqCst) < 2 && start.elapsed() < Duration::from_secs(10) {
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        active.fetch_sub(1, Ordering::SeqCst);
+    }
+
+    /// `--jobs 2` works on two cells at once: each call waits until the other worker has
+    /// started one too, so one worker at a time would record a most of 1.
     #[test]
     fn jobs_run_at_the_same_time_and_every_item_once() {
         let (active, most, done) = (AtomicUsize::new(0), AtomicUsize::new(0), Mutex::new(Vec::new()));
-        let failures = in_parallel((0..6).collect(), 2, |i| {
-            let now = active.fetch_add(1, Ordering::SeqCst) + 1;
-            most.fetch_max(now, Ordering::SeqCst);
-            let start = Instant::now();
-            while most.load(Ordering::SeqCst) < 2 && start.elapsed() < Duration::from_secs(10) {
-                std::thread::sleep(Duration::from_millis(1));
-            }
-            active.fetch_sub(1, Ordering::SeqCst);
+        let failures = in_parallel((0..6).collect(), 2, 1, |i| {
+            wait_for_a_second(&active, &most);
             done.lock().unwrap().push(i);
             (i % 3 == 0).then(|| format!("item {i}"))
         });
@@ -184,5 +238,42 @@ mod tests {
         let mut failures = failures;
         failures.sort();
         assert_eq!(failures, ["item 0", "item 3"]);
+    }
+
+    /// Each job's kernels run on rayon threads of its own: with one kernel thread per job, a
+    /// kernel task of each job waits inside rayon until the other job's is running too, which
+    /// jobs sharing one kernel thread (rayon's global pool under `RAYON_NUM_THREADS=1`) could
+    /// never see; and a job's pool has the threads it was given.
+    #[test]
+    fn each_job_runs_its_kernels_on_threads_of_its_own() {
+        let (active, most) = (AtomicUsize::new(0), AtomicUsize::new(0));
+        let failures = in_parallel((0..2).collect(), 2, 1, |_| {
+            let (on_a_worker, ()) = rayon::join(
+                || {
+                    wait_for_a_second(&active, &most);
+                    rayon::current_thread_index().is_some()
+                },
+                || (),
+            );
+            (!on_a_worker || rayon::current_num_threads() != 1).then(|| "not on its own kernel thread".to_string())
+        });
+        assert!(failures.is_empty(), "{failures:?}");
+        assert_eq!(most.load(Ordering::SeqCst), 2, "the jobs' kernels took turns on shared threads");
+        let sizes = Mutex::new(Vec::new());
+        in_parallel((0..4).collect(), 2, 3, |_| {
+            sizes.lock().unwrap().push(rayon::current_num_threads());
+            None
+        });
+        assert_eq!(sizes.into_inner().unwrap(), [3, 3, 3, 3]);
+    }
+
+    #[test]
+    fn the_kernel_threads_are_shared_out_among_the_jobs() {
+        assert_eq!(threads_per_job(2, 1), 2);
+        assert_eq!(threads_per_job(2, 2), 1);
+        assert_eq!(threads_per_job(1, 2), 1, "at least one each");
+        assert_eq!(threads_per_job(16, 4), 4);
+        assert_eq!(threads_per_job(16, 3), 5);
+        assert_eq!(threads_per_job(8, 0), 8, "no jobs read as one");
     }
 }

@@ -153,6 +153,8 @@ fn out_of_range_flags_are_refused_naming_the_flag() {
         // A million cells at a time spawned a million threads and aborted.
         ["experiment", "--list", "--jobs", "1000000"],
         ["experiment", "--list", "--jobs", "0"],
+        ["experiment", "--list", "--threads-per-job", "0"],
+        ["experiment", "--list", "--threads-per-job", "100000"],
     ] {
         refused(&dir, &args, &[args[args.len() - 2]]);
     }
@@ -712,6 +714,24 @@ fn malformed_experiment_names_do_not_escape() {
     .unwrap();
     let case = valid_case().to_str().unwrap().to_string();
     refused(&dir, &["experiment", "--matrix", "matrix.toml", "--cases", &case, "--out", "out/m"], &["matrix.toml"]);
+    // 256 jobs of 1,024 kernel threads each would start 262,144 threads.
+    refused(
+        &dir,
+        &[
+            "experiment",
+            "--matrix",
+            "matrix.toml",
+            "--cases",
+            &case,
+            "--out",
+            "out/m",
+            "--jobs",
+            "256",
+            "--threads-per-job",
+            "1024",
+        ],
+        &["--jobs 256", "--threads-per-job 1024", "4096"],
+    );
     // A view the case does not have: refused when the matrix is read, not in each cell.
     std::fs::write(
         dir.join("views.toml"),
