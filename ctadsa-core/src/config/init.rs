@@ -29,7 +29,9 @@ pub struct InitConfig {
     /// Gaussians seeded from the images.
     pub n2: usize,
     pub n2_mode: SeedMode,
-    /// Vessel mask: pixels ≥ this × the 99.5th percentile of the view's positive pixels.
+    /// Vessel mask: pixels ≥ this × the 99.5th percentile of the view's positive pixels, and
+    /// at least 3 × the view's estimated noise σ (`data::masks::vessel_level`; no floor on a
+    /// noise-free view).
     pub mask_threshold: f64,
     /// Dilation (pixels) of the projected prior before it is subtracted. It covers the
     /// silhouette's rasterisation error; every pixel more hides the vessels that leave the prior

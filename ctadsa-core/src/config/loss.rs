@@ -10,7 +10,8 @@ pub struct LossConfig {
     pub lambda_dssim: f64,
     pub fn_weight: f64,
     pub fn_start: usize,
-    /// Vessel pixels for the FN loss: ≥ τ × the 99.5th percentile of the target's positives.
+    /// Vessel pixels for the FN loss: ≥ τ × the 99.5th percentile of the target's positives,
+    /// and at least 3 × the view's estimated noise σ (`data::masks::NOISE_FLOOR_SIGMAS`).
     pub fn_tau: f64,
     pub fn_margin: f64,
     pub pa_weight: f64,

@@ -8,6 +8,7 @@ use ctadsa_ops::loss_op::l1_mean;
 use ctadsa_ops::ssim::{SsimTarget, ssim_against};
 
 use crate::data::case::images::Image;
+use crate::data::masks::{NOISE_FLOOR_SIGMAS, noise_sigma};
 use crate::stats::percentile;
 
 /// Everything about the targets that the losses need, computed once.
@@ -63,7 +64,9 @@ impl LossTargets {
             let c = if pos.is_empty() { max as f64 } else { percentile(&pos, 99.5) } as f32;
             cs.push(c);
             let g: Vec<f32> = img.data.iter().map(|&x| (x / c).clamp(0.0, 1.0)).collect();
-            let mask: Vec<f32> = g.iter().map(|&x| (x as f64 >= tau && x > 0.0) as u8 as f32).collect();
+            // Vessel pixels: g ≥ τ, and clear of the view's noise (`masks::NOISE_FLOOR_SIGMAS`).
+            let floor = tau.max(NOISE_FLOOR_SIGMAS * noise_sigma(img) / f64::from(c.max(1e-12)));
+            let mask: Vec<f32> = g.iter().map(|&x| (x as f64 >= floor && x > 0.0) as u8 as f32).collect();
             let density = box_average(&mask, w, h, 7);
             let wmap: Vec<f32> =
                 mask.iter().zip(&density).map(|(&m, &d)| m * d.max(1e-4).powf(-0.25).min(3.0)).collect();
@@ -131,12 +134,12 @@ mod tests {
 
     #[test]
     fn fn_loss_by_hand() {
-        // One view, 1 × 4 pixels: target [0, 1, 2, 4] → c = P99.5 of {1, 2, 4} = 3.98,
-        // but use an exactly known case: a single positive pixel.
-        let img = Image { width: 4, height: 1, data: vec![0.0, 0.0, 2.0, 0.0] };
+        // One view, 1 × 8 pixels, a single positive pixel on a flat (noise-free) background:
+        // c = 2, g = [0, 0, 1, 0, …], the only vessel pixel has all the weight.
+        let img = Image { width: 8, height: 1, data: vec![0.0, 0.0, 2.0, 0.0, 0.0, 0.0, 0.0, 0.0] };
         let t = LossTargets::new(&[img], 0.01, &dev());
-        // c = 2, g = [0, 0, 1, 0], the only vessel pixel has all the weight.
-        let pred = Tensor::<3>::from_data(TensorData::new(vec![5.0f32, 0.0, 0.5, 0.0], [1, 1, 4]), &dev());
+        let pred =
+            Tensor::<3>::from_data(TensorData::new(vec![5.0f32, 0.0, 0.5, 0.0, 0.0, 0.0, 0.0, 0.0], [1, 1, 8]), &dev());
         // miss = relu(1 − 0.25 − 0.005) = 0.745.
         let l = t.fn_loss(pred, 0.005).into_scalar::<f32>();
         assert!((l - 0.745).abs() < 1e-6, "{l}");
