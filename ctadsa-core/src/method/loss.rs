@@ -8,7 +8,7 @@ use ctadsa_ops::loss_op::l1_mean;
 use ctadsa_ops::ssim::{SsimTarget, ssim_against};
 
 use crate::data::case::images::Image;
-use crate::data::masks::{NOISE_FLOOR_SIGMAS, noise_sigma};
+use crate::data::masks::vessel_level;
 use crate::stats::percentile;
 
 /// Everything about the targets that the losses need, computed once.
@@ -64,9 +64,9 @@ impl LossTargets {
             let c = if pos.is_empty() { max as f64 } else { percentile(&pos, 99.5) } as f32;
             cs.push(c);
             let g: Vec<f32> = img.data.iter().map(|&x| (x / c).clamp(0.0, 1.0)).collect();
-            // Vessel pixels: g ≥ τ, and clear of the view's noise (`masks::NOISE_FLOOR_SIGMAS`).
-            let floor = tau.max(NOISE_FLOOR_SIGMAS * noise_sigma(img) / f64::from(c.max(1e-12)));
-            let mask: Vec<f32> = g.iter().map(|&x| (x as f64 >= floor && x > 0.0) as u8 as f32).collect();
+            // Vessel pixels: the view's vessel level at τ (g ≥ τ, and clear of the view's noise).
+            let level = vessel_level(img, tau);
+            let mask: Vec<f32> = img.data.iter().map(|&x| (x as f64 >= level && x > 0.0) as u8 as f32).collect();
             let density = box_average(&mask, w, h, 7);
             let wmap: Vec<f32> =
                 mask.iter().zip(&density).map(|(&m, &d)| m * d.max(1e-4).powf(-0.25).min(3.0)).collect();
