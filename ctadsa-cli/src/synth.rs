@@ -74,6 +74,11 @@ pub struct SynthArgs {
     /// Poisson noise: unattenuated photons per pixel.
     #[arg(long)]
     noise_photons: Option<f64>,
+    /// With --noise-photons: attenuation per image unit (1 / (contrast × mm)); a pixel of value
+    /// `p` is seen through `photons × e^(−μ p)` photons, so the background's noise is
+    /// 1 / (μ √photons) image units and a vessel's e^(μ p / 2) times that (default 1).
+    #[arg(long, requires = "noise_photons")]
+    noise_attenuation: Option<f64>,
     /// Gaussian noise standard deviation (image units).
     #[arg(long)]
     noise_sigma: Option<f64>,
@@ -147,6 +152,7 @@ pub fn config_from(args: &SynthArgs, anatomy: Anatomy, name: String) -> Result<S
         contrast_per_mm: args.contrast,
         noise: NoiseModel {
             poisson_photons: args.noise_photons,
+            attenuation: args.noise_attenuation,
             gaussian_sigma: args.noise_sigma,
             ..Default::default()
         },

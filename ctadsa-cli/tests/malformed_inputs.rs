@@ -125,6 +125,7 @@ fn out_of_range_flags_are_refused_naming_the_flag() {
         ("--supersample", "100000", "supersample"),
         ("--voxel-mm", "1e-4", "voxel"),
         ("--noise-photons", "0", "noise photons"),
+        ("--noise-photons=1e4", "--noise-attenuation=-0.1", "noise attenuation"),
         ("--binning", "1000", "binning"),
         ("--contrast", "nan", "contrast"),
         ("--noise-sigma=-1", "", "noise sigma"),

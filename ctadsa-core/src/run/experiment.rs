@@ -201,8 +201,6 @@ fn cell_metrics(summary: &RunSummary) -> BTreeMap<String, Option<f64>> {
     metrics
 }
 
-/// How many views the case in `dir` has, when its `case.json` can be read.
-/// The case file in `dir`, when it can be read.
 /// A digest (16 hex digits) of the names and bytes of the files a cell reads from its case: the
 /// view images and arrival maps, the prior mesh (`priors/<tag>/` when the matrix names the
 /// prior) and the ground truth. A file re-made under the same name (a prior cut from other
