@@ -7,6 +7,7 @@ use crate::data::case::images::Image;
 use crate::data::mesh::TriMesh;
 use crate::data::mesh::voxelize::voxelize_mesh;
 use crate::data::projector::project_volume;
+use crate::data::vessel_evidence::VesselEvidence;
 use crate::data::volume::{Grid, Volume};
 use crate::stats::percentile;
 
@@ -74,10 +75,11 @@ impl Mask {
 }
 
 /// How many of an image's noise standard deviations ([`noise_sigma`]) a pixel must stand above 0
-/// to count as vessel, whatever the threshold asks: in a view with quantum or electronic noise a
-/// fixed fraction of the bright percentile lies inside the noise, and the masks, seeds and
-/// losses built on it would take noise pixels for vessels. With 3 σ about 0.1 % of a noisy
-/// background passes.
+/// to count as vessel: in a view with quantum or electronic noise a fixed fraction
+/// of the bright percentile lies inside the noise, and the masks, seeds and losses built on it
+/// would take noise pixels for vessels. With 3 σ about 0.1 % of a noisy background passes. Views
+/// whose noise is high against their vessels are read pooled along the vessels instead, at a
+/// floor that lets through the same share ([`VesselEvidence`]).
 pub const NOISE_FLOOR_SIGMAS: f64 = 3.0;
 
 /// The image's noise standard deviation (image units), estimated without knowing where the
@@ -100,17 +102,10 @@ pub fn noise_sigma(image: &Image) -> f64 {
     f64::from(*median) / (0.674_489_75 * std::f64::consts::SQRT_2)
 }
 
-/// The image value that defines "vessel": `threshold ×` the 99.5th percentile of the positive
-/// pixels, and at least [`NOISE_FLOOR_SIGMAS`] × the image's [`noise_sigma`] (0 for an image
-/// without positive pixels).
-pub fn vessel_level(image: &Image, threshold: f64) -> f64 {
-    let pos: Vec<f64> = image.data.iter().filter(|&&v| v > 0.0).map(|&v| v as f64).collect();
-    if pos.is_empty() { 0.0 } else { (threshold * percentile(&pos, 99.5)).max(NOISE_FLOOR_SIGMAS * noise_sigma(image)) }
-}
-
-/// Vessel mask of an image.
+/// Vessel mask of an image: its [`VesselEvidence`] above the level at `threshold` (a fraction of
+/// the bright percentile, clear of the view's noise).
 pub fn vessel_mask(image: &Image, threshold: f64) -> Mask {
-    above(image, vessel_level(image, threshold))
+    VesselEvidence::of(image).mask(threshold)
 }
 
 /// The pixels of `image` above `level` (and above 0).
@@ -240,22 +235,26 @@ mod tests {
     }
 
     #[test]
-    fn the_vessel_level_stays_clear_of_the_noise() {
+    fn the_vessel_mask_stays_clear_of_the_noise() {
         // Clean: the threshold's fraction of the bright percentile, as before.
         let clean = banded_view(0.0);
-        assert!((vessel_level(&clean, 0.05) - 0.1).abs() < 1e-9);
+        assert!((VesselEvidence::of(&clean).level(0.05) - 0.1).abs() < 1e-9);
         // Noisy: at 0.05 × P99.5 (≈ 0.11) the mask would take a seventh of the background (σ = 0.1);
-        // the level rises to 3 σ and keeps the background out, the vessels in.
+        // the level rises to the noise floor and keeps the background out, the vessels in.
         let noisy = banded_view(0.1);
-        let level = vessel_level(&noisy, 0.05);
-        assert!((level / (NOISE_FLOOR_SIGMAS * 0.1) - 1.0).abs() < 0.2, "{level}");
+        let evidence = VesselEvidence::of(&noisy);
+        assert!(evidence.noise_floor > 0.1, "{}", evidence.noise_floor);
+        assert_eq!(evidence.level(0.05), evidence.noise_floor);
         let mask = vessel_mask(&noisy, 0.05);
         let n = noisy.width as usize;
         let (mut background, mut vessel) = (0usize, 0usize);
         for (i, &m) in mask.data.iter().enumerate() {
             if (i % n) % 20 < 4 { vessel += m as usize } else { background += m as usize }
         }
-        assert!(background < 200, "{background} background pixels in the mask");
+        // About 0.1 % of the background alone; the pixels beside the bands add a little (the
+        // noise of one half of a line that crosses a band).
+        let background_pixels = (0..n).filter(|c| c % 20 >= 4).count() * n;
+        assert!(background * 100 < background_pixels, "{background} background pixels in the mask");
         let vessel_pixels = (0..n).filter(|c| c % 20 < 4).count() * n;
         assert_eq!(vessel, vessel_pixels, "every vessel pixel in the mask");
     }

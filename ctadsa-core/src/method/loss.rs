@@ -8,8 +8,7 @@ use ctadsa_ops::loss_op::l1_mean;
 use ctadsa_ops::ssim::{SsimTarget, ssim_against};
 
 use crate::data::case::images::Image;
-use crate::data::masks::vessel_level;
-use crate::stats::percentile;
+use crate::data::vessel_evidence::VesselEvidence;
 
 /// Everything about the targets that the losses need, computed once.
 #[derive(Debug, Clone)]
@@ -18,7 +17,8 @@ pub struct LossTargets {
     pub target: Tensor<3>,
     /// Normalisation of L1/SSIM: images are multiplied by `1 / max(target)`.
     pub scale: f32,
-    /// Per view `[V, 1, 1]`: the FN normaliser `c` (99.5th percentile of positive pixels).
+    /// Per view `[V, 1, 1]`: the FN normaliser `c` (the view's bright value,
+    /// [`VesselEvidence::bright`]: the 99.5th percentile of the pixels that show something).
     pub fn_c: Tensor<3>,
     /// `[V, H, W]`: `clamp(target / c, 0, 1)`.
     pub fn_g: Tensor<3>,
@@ -60,13 +60,16 @@ impl LossTargets {
         let mut weights = Vec::with_capacity(v * w * h);
         for img in images {
             target.extend_from_slice(&img.data);
-            let pos: Vec<f64> = img.data.iter().filter(|&&x| x > 0.0).map(|&x| x as f64).collect();
-            let c = if pos.is_empty() { max as f64 } else { percentile(&pos, 99.5) } as f32;
+            // g: the image over the view's bright value; vessel pixels: the view's vessel evidence
+            // at its level at τ (g ≥ τ, and clear of the view's noise).
+            let evidence = VesselEvidence::of(img);
+            let c = evidence.bright().unwrap_or(max as f64) as f32;
             cs.push(c);
             let g: Vec<f32> = img.data.iter().map(|&x| (x / c).clamp(0.0, 1.0)).collect();
-            // Vessel pixels: the view's vessel level at τ (g ≥ τ, and clear of the view's noise).
-            let level = vessel_level(img, tau);
-            let mask: Vec<f32> = img.data.iter().map(|&x| (x as f64 >= level && x > 0.0) as u8 as f32).collect();
+            let level = evidence.level(tau);
+            let mask: Vec<f32> = (evidence.image.data.iter().enumerate())
+                .map(|(i, &x)| (x as f64 >= level && x > 0.0 && evidence.settled_at(i)) as u8 as f32)
+                .collect();
             let density = box_average(&mask, w, h, 7);
             let wmap: Vec<f32> =
                 mask.iter().zip(&density).map(|(&m, &d)| m * d.max(1e-4).powf(-0.25).min(3.0)).collect();

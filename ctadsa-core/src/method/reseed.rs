@@ -14,7 +14,8 @@ use rand_chacha::ChaCha8Rng;
 
 use crate::config::InitConfig;
 use crate::data::case::images::Image;
-use crate::data::masks::{Mask, silhouettes, vessel_level, vessel_mask};
+use crate::data::masks::{Mask, silhouettes};
+use crate::data::vessel_evidence::VesselEvidence;
 use crate::data::volume::{BoxMm, Grid, Volume};
 use crate::error::Result;
 use crate::method::init::{arrival_pair, arriving, back_project, best_centres, connected_to_anchors};
@@ -75,11 +76,15 @@ pub fn residual_seeds(
         .zip(inputs.renders)
         .map(|(t, r)| Image { data: t.data.iter().zip(r).map(|(&a, &b)| a - b).collect(), ..t.clone() })
         .collect();
+    // Each view's residual read as its target is (pooled along the vessels where noisy), against
+    // the target's vessel level.
+    let evidence: Vec<VesselEvidence> = inputs.targets.iter().map(VesselEvidence::of).collect();
+    let residuals: Vec<Image> = residuals.iter().zip(&evidence).map(|(r, e)| e.read(r).into_owned()).collect();
     let support: Vec<Mask> = residuals
         .iter()
-        .zip(inputs.targets)
+        .zip(&evidence)
         .map(|(res, target)| {
-            let level = vessel_level(target, mask_threshold);
+            let level = target.level(mask_threshold);
             let data = res.data.iter().map(|&v| v as f64 > level && v > 0.0).collect();
             Mask { width: res.width, height: res.height, data }.dilated(cfg.residual_dilation_px)
         })
@@ -91,11 +96,9 @@ pub fn residual_seeds(
     let occluded: Option<Vec<Mask>> = prior.filter(|_| occluded_support).map(|p| {
         silhouettes(p, inputs.views)
             .iter()
-            .zip(inputs.targets)
+            .zip(&evidence)
             .map(|(sil, t)| {
-                vessel_mask(t, mask_threshold)
-                    .dilated(cfg.residual_dilation_px)
-                    .and(&sil.dilated(cfg.prior_dilation_px))
+                t.mask(mask_threshold).dilated(cfg.residual_dilation_px).and(&sil.dilated(cfg.prior_dilation_px))
             })
             .collect()
     });

@@ -37,9 +37,10 @@ use rayon::prelude::*;
 
 use crate::config::{InitConfig, SeedMode};
 use crate::data::case::images::Image;
-use crate::data::masks::{Mask, above, prior_solid, vessel_level};
+use crate::data::masks::{Mask, prior_solid};
 use crate::data::mesh::TriMesh;
 use crate::data::mesh::sample::sample_surface;
+use crate::data::vessel_evidence::VesselEvidence;
 use crate::data::volume::{BoxMm, Grid};
 use crate::error::{CoreError, Result};
 use crate::method::model::{GaussianInit, ScaleBounds};
@@ -96,8 +97,13 @@ pub fn n2_seeds(
         }
         return Ok(out);
     }
-    let levels: Vec<f64> = images.iter().map(|img| vessel_level(img, cfg.mask_threshold)).collect();
-    let masks: Vec<Mask> = images.iter().zip(&levels).map(|(img, &level)| above(img, level)).collect();
+    // What the views show of their vessels (pooled along them where noisy): everything below
+    // reads these, their levels and masks.
+    let evidence: Vec<VesselEvidence> = images.iter().map(VesselEvidence::of).collect();
+    let levels: Vec<f64> = evidence.iter().map(|e| e.level(cfg.mask_threshold)).collect();
+    let masks: Vec<Mask> = evidence.iter().map(|e| e.mask(cfg.mask_threshold)).collect();
+    let shown_images: Vec<Image> = evidence.into_iter().map(|e| e.image.into_owned()).collect();
+    let images = shown_images.as_slice();
     let intersect = cfg.n2_mode != SeedMode::ResidualUnion;
     let exclude = if cfg.n2_mode == SeedMode::AllViewsIntersect { None } else { solid.as_ref() };
     let shown = ResidualViews {

@@ -76,6 +76,48 @@ fn residual_seeds_lie_on_the_vessel_the_prior_misses() {
 }
 
 #[test]
+fn residual_seeds_find_a_vessel_below_the_per_pixel_noise_floor() {
+    let (prior, views, clean, bounds) = scene();
+    // Noise at 0.6 × the missing vessel's brightest pixel: the per-pixel 3 σ floor lies above the
+    // whole vessel (no seed at all on the per-pixel masks); pooled along it the vessel stands out.
+    let (_, prior_only) = prior_and_images(PRIOR, &[], &views, &bounds);
+    let missing_only: Vec<Image> = clean
+        .iter()
+        .zip(&prior_only)
+        .map(|(a, b)| Image { data: a.data.iter().zip(&b.data).map(|(x, y)| x - y).collect(), ..a.clone() })
+        .collect();
+    let peak = missing_only.iter().map(Image::max).fold(0.0f32, f32::max) as f64;
+    let sigma = 0.6 * peak;
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    let noisy: Vec<Image> = clean
+        .iter()
+        .map(|img| Image {
+            data: img
+                .data
+                .iter()
+                .map(|&v| (v as f64 + sigma * crate::data::projector::noise::standard_normal(&mut rng)) as f32)
+                .collect(),
+            ..img.clone()
+        })
+        .collect();
+    assert!(missing_only.iter().all(|m| (m.max() as f64) < crate::data::masks::NOISE_FLOOR_SIGMAS * sigma));
+    let cfg = InitConfig { n2: 300, prior_dilation_px: 1, connected_to_prior_mm: 0.0, ..InitConfig::default() };
+    let seeds = n2_seeds(&cfg, &views, &noisy, Some(&prior), &bounds, 0.4, 7, None).unwrap();
+    let on_missing = seeds.iter().filter(|p| to_segment(**p, MISSING.0, MISSING.1) < 1.5).count();
+    // The share of the vessel's axis (every 0.5 mm) with a seed within 1 mm.
+    let (a, b) = (DVec3::from(MISSING.0), DVec3::from(MISSING.1));
+    let axis: Vec<DVec3> = (0..=32).map(|i| a + (b - a) * (i as f64 / 32.0)).collect();
+    let covered = axis.iter().filter(|q| seeds.iter().any(|p| p.distance(**q) < 1.0)).count();
+    eprintln!(
+        "noisy residual seeds: {on_missing} of {} on the missing vessel, {covered} of 33 axis points",
+        seeds.len()
+    );
+    assert!(seeds.len() >= 50, "only {} seeds", seeds.len());
+    assert!(on_missing as f64 >= 0.7 * seeds.len() as f64, "{on_missing} of {} on the missing vessel", seeds.len());
+    assert!(covered >= 10, "{covered} of 33 points of the vessel's axis seeded");
+}
+
+#[test]
 fn occluded_views_support_seeds_vessels_behind_the_prior_that_connect_to_it() {
     let (_, views, _, bounds) = scene();
     // A short prior vessel and two thin ones parallel to it, hidden behind it in view 0

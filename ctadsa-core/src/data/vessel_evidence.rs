@@ -1,0 +1,325 @@
+//! What a view shows of its vessels, pooled along them where the view is noisy.
+//!
+//! In a view with quantum or electronic noise each pixel of a thin vessel can lie below the
+//! per-pixel noise floor (3 σ) while the line of pixels it belongs to does not. Read along lines
+//! of [`LINE_PX`] pixels through each pixel in [`ORIENTATIONS`] directions ([`LineReadings`]),
+//! a straight vessel keeps its value and the noise shrinks by two to three: the masks find
+//! vessels at under half the per-pixel floor. Pooling also loses detail (vessel edges and
+//! bends), so only views whose noise is high against their vessels are pooled
+//! ([`POOLED_NOISE_SHARE`]); the others, noise-free ones ([`noise_sigma`] 0) among them, are read
+//! per pixel.
+
+use std::borrow::Cow;
+use std::sync::OnceLock;
+
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+
+use crate::data::case::images::Image;
+use crate::data::masks::{Mask, NOISE_FLOOR_SIGMAS, above, noise_sigma};
+use crate::data::projector::noise::standard_normal;
+use crate::stats::percentile;
+
+/// Pixels on each line (odd: the line is centred on the pixel it scores).
+pub const LINE_PX: usize = 9;
+/// Directions of the lines, evenly spread over 180°.
+pub const ORIENTATIONS: usize = 12;
+/// The fewest pixels of a line, cut short by the image's edge, that are read.
+pub const MIN_LINE_PX: usize = LINE_PX / 2 + 1;
+
+/// The pixel offsets (column, row) of each orientation's line, nearest pixels.
+fn line_offsets() -> [[(i32, i32); LINE_PX]; ORIENTATIONS] {
+    let half = (LINE_PX / 2) as i32;
+    std::array::from_fn(|k| {
+        let angle = k as f64 * std::f64::consts::PI / ORIENTATIONS as f64;
+        let (sin, cos) = angle.sin_cos();
+        std::array::from_fn(|i| {
+            let t = (i as i32 - half) as f64;
+            ((t * cos).round() as i32, (t * sin).round() as i32)
+        })
+    })
+}
+
+/// A view pooled along lines through each pixel: the two readings [`VesselEvidence`] takes.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LineReadings {
+    /// Each pixel the largest over [`ORIENTATIONS`] of the smaller of the means of its line's
+    /// two halves ([`MIN_LINE_PX`] pixels each, the pixel itself in both): high where a vessel
+    /// runs on both sides of the pixel, so it finds thin vessels and does not lengthen their
+    /// ends; the noise of the best of the directions lifts it, most beside a vessel, where one
+    /// half of a crossing line reads only noise. Lines that leave the image are not read; where
+    /// every one does (near two edges) the pixel keeps its own value.
+    pub along: Image,
+    /// Each pixel the mean of its line along which the image varies least: along a vessel, a
+    /// vessel's edge or anywhere in a flat background. The choice follows the variance, not the
+    /// mean, so the noise lifts no pixel and beside a vessel the line runs beside it too. Near
+    /// the image's edges a line is read where it lies on the image, if that is at least
+    /// [`MIN_LINE_PX`] pixels.
+    pub least_varying: Image,
+}
+
+/// The [`LineReadings`] of `image`.
+pub fn line_readings(image: &Image) -> LineReadings {
+    let (w, h) = (image.width as i32, image.height as i32);
+    let lines = line_offsets();
+    let centre = LINE_PX / 2;
+    let pairs: Vec<(f32, f32)> = (0..image.data.len())
+        .into_par_iter()
+        .map(|i| {
+            let (c, r) = ((i % w as usize) as i32, (i / w as usize) as i32);
+            let own = image.data[i] as f64;
+            let mut along = f64::NEG_INFINITY;
+            let (mut least_variance, mut mean_along) = (f64::INFINITY, own);
+            for line in &lines {
+                let (mut n, mut sum, mut sum_sq) = (0usize, 0.0f64, 0.0f64);
+                let mut halves = [0.0f64; 2];
+                for (k, &(dc, dr)) in line.iter().enumerate() {
+                    let (cc, rr) = (c + dc, r + dr);
+                    if cc >= 0 && rr >= 0 && cc < w && rr < h {
+                        let v = image.data[(rr * w + cc) as usize] as f64;
+                        (n, sum, sum_sq) = (n + 1, sum + v, sum_sq + v * v);
+                        if k <= centre {
+                            halves[0] += v;
+                        }
+                        if k >= centre {
+                            halves[1] += v;
+                        }
+                    }
+                }
+                if n == LINE_PX {
+                    along = along.max(halves[0].min(halves[1]) / MIN_LINE_PX as f64);
+                }
+                if n >= MIN_LINE_PX {
+                    let mean = sum / n as f64;
+                    // Unbiased, so that lines cut short by the image's edge compete fairly.
+                    let variance = (sum_sq - n as f64 * mean * mean) / (n - 1) as f64;
+                    if variance < least_variance {
+                        (least_variance, mean_along) = (variance, mean);
+                    }
+                }
+            }
+            let along = if along == f64::NEG_INFINITY { own } else { along };
+            (along as f32, mean_along as f32)
+        })
+        .collect();
+    let image_of = |data: Vec<f32>| Image { width: image.width, height: image.height, data };
+    LineReadings {
+        along: image_of(pairs.iter().map(|p| p.0).collect()),
+        least_varying: image_of(pairs.iter().map(|p| p.1).collect()),
+    }
+}
+
+/// The share of a noise-only background that the per-pixel floor
+/// ([`crate::data::masks::NOISE_FLOOR_SIGMAS`] = 3 σ, a one-sided normal tail) lets through:
+/// 0.135 %; each pooled floor lets through the same.
+const FLOOR_TAIL: f64 = 0.001_35;
+
+/// The floors of [`LineReadings::along`] and [`LineReadings::least_varying`] in units of the
+/// view's noise σ: the quantiles of the readings of unit white Gaussian noise that
+/// [`FLOOR_TAIL`] of it exceeds, from a seeded 512² field (the same numbers on every machine).
+pub fn pooled_floors_sigmas() -> (f64, f64) {
+    static FLOORS: OnceLock<(f64, f64)> = OnceLock::new();
+    *FLOORS.get_or_init(|| {
+        let n = 512u32;
+        let mut rng = ChaCha8Rng::seed_from_u64(0x7e55_e15e);
+        let data = (0..n * n).map(|_| standard_normal(&mut rng) as f32).collect();
+        let readings = line_readings(&Image { width: n, height: n, data });
+        let quantile = |image: &Image| {
+            let values: Vec<f64> = image.data.iter().map(|&v| v as f64).collect();
+            percentile(&values, 100.0 * (1.0 - FLOOR_TAIL))
+        };
+        (quantile(&readings.along), quantile(&readings.least_varying))
+    })
+}
+
+/// A view is pooled when its noise σ exceeds this share of its bright value (the 99.5th
+/// percentile of its pixels above 3 σ), i.e. where the per-pixel floor lies more than about a
+/// quarter above the level that `mask_threshold = 0.05` asks. Below it the per-pixel floor costs
+/// the masks little and the lines' loss of detail (vessel edges, bends) costs more: on the
+/// shared BraVa trees the views at σ = 0.1 lie at 0.009–0.019, those at σ = 0.2 at 0.015–0.032,
+/// and completions on pooled σ = 0.1 views scored worse than on per-pixel ones
+/// (docs/RESULTS.md, "Noisy views").
+pub const POOLED_NOISE_SHARE: f64 = 0.021;
+
+/// The 99.5th percentile of the pixels of `image` above 0 and `floor`; `None` where none is.
+fn shown_bright(image: &Image, floor: f64) -> Option<f64> {
+    let shown: Vec<f64> = image.data.iter().filter(|&&v| v > 0.0 && v as f64 > floor).map(|&v| v as f64).collect();
+    (!shown.is_empty()).then(|| percentile(&shown, 99.5))
+}
+
+/// What a view shows of its vessels. A view whose noise is high against its vessels
+/// ([`POOLED_NOISE_SHARE`]): its [`LineReadings::along`], whose pixels count as vessel above the
+/// level where the [`LineReadings::least_varying`] mean stands above its own floor too (the
+/// second reading keeps the first from widening the vessels). Any other view: the image itself,
+/// its pixels above the level and 3 σ ([`NOISE_FLOOR_SIGMAS`]; 0 for a noise-free view).
+#[derive(Debug, Clone)]
+pub struct VesselEvidence<'a> {
+    /// The values a vessel is read from (image units).
+    pub image: Cow<'a, Image>,
+    /// The level below which no pixel of `image` counts as vessel whatever the threshold asks
+    /// (image units; 3 σ per pixel, 0 for a noise-free view).
+    pub noise_floor: f64,
+    /// Pooled views: the pixels whose least varying line stands above its floor.
+    settled: Option<Mask>,
+}
+
+impl<'a> VesselEvidence<'a> {
+    /// The evidence of `image`.
+    pub fn of(image: &'a Image) -> Self {
+        let sigma = noise_sigma(image);
+        let per_pixel_floor = NOISE_FLOOR_SIGMAS * sigma;
+        let pool = sigma > 0.0 && shown_bright(image, per_pixel_floor).is_some_and(|b| sigma > POOLED_NOISE_SHARE * b);
+        if pool {
+            let readings = line_readings(image);
+            let (along_floor, least_varying_floor) = pooled_floors_sigmas();
+            Self {
+                image: Cow::Owned(readings.along),
+                noise_floor: along_floor * sigma,
+                settled: Some(above(&readings.least_varying, least_varying_floor * sigma)),
+            }
+        } else {
+            Self { image: Cow::Borrowed(image), noise_floor: per_pixel_floor, settled: None }
+        }
+    }
+
+    /// Whether the view was pooled.
+    pub fn pooled(&self) -> bool {
+        self.settled.is_some()
+    }
+
+    /// `other` (an image of the same view, e.g. a residual) read as this view is: its
+    /// [`LineReadings::along`] when the view is pooled.
+    pub fn read<'b>(&self, other: &'b Image) -> Cow<'b, Image> {
+        if self.pooled() { Cow::Owned(line_readings(other).along) } else { Cow::Borrowed(other) }
+    }
+
+    /// The view's bright value: the 99.5th percentile of the evidence's positive pixels, in a
+    /// pooled view of those above the noise floor (there the best of the lines lifts most of the
+    /// background above 0 and would pull the percentile down); `None` where no pixel counts.
+    pub fn bright(&self) -> Option<f64> {
+        shown_bright(&self.image, if self.pooled() { self.noise_floor } else { 0.0 })
+    }
+
+    /// The image value that defines "vessel": `threshold ×` [`Self::bright`], and at least the
+    /// noise floor (0 where no pixel shows anything).
+    pub fn level(&self, threshold: f64) -> f64 {
+        self.bright().map_or(0.0, |bright| (threshold * bright).max(self.noise_floor))
+    }
+
+    /// Whether pixel `i` (row-major) may count as vessel beside its value: always in a view
+    /// read per pixel; in a pooled one where its least varying line stands above its floor.
+    pub fn settled_at(&self, i: usize) -> bool {
+        self.settled.as_ref().is_none_or(|m| m.data[i])
+    }
+
+    /// The vessel pixels: the evidence above [`Self::level`] (and, pooled, settled).
+    pub fn mask(&self, threshold: f64) -> Mask {
+        let above_level = above(&self.image, self.level(threshold));
+        match &self.settled {
+            Some(settled) => above_level.and(settled),
+            None => above_level,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 256² flat background with a straight band `width_px` wide of `value` (a vessel) at 30°,
+    /// plus Gaussian noise of `sigma`; the band's pixels as a mask.
+    fn faint_vessel(value: f64, width_px: f64, sigma: f64) -> (Image, Vec<bool>) {
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        let n = 256usize;
+        let (sin, cos) = (30f64.to_radians()).sin_cos();
+        let on: Vec<bool> = (0..n * n)
+            .map(|i| {
+                let (x, y) = ((i % n) as f64 - 128.0, (i / n) as f64 - 128.0);
+                (-x * sin + y * cos).abs() < width_px / 2.0
+            })
+            .collect();
+        let data =
+            on.iter().map(|&v| (if v { value } else { 0.0 } + sigma * standard_normal(&mut rng)) as f32).collect();
+        (Image { width: n as u32, height: n as u32, data }, on)
+    }
+
+    #[test]
+    fn a_noise_free_view_is_read_as_it_is() {
+        let (image, _) = faint_vessel(1.0, 2.0, 0.0);
+        let evidence = VesselEvidence::of(&image);
+        assert!(!evidence.pooled());
+        assert_eq!(evidence.noise_floor, 0.0);
+        assert_eq!(*evidence.image, image);
+        assert_eq!(evidence.mask(0.5), crate::data::masks::vessel_mask(&image, 0.5));
+    }
+
+    #[test]
+    fn a_view_with_little_noise_against_its_vessels_is_read_per_pixel() {
+        // σ 0.02 against vessels of 1: the per-pixel floor (0.06) lies under the level the
+        // threshold asks (0.05), and the view is read as it is.
+        let (image, _) = faint_vessel(1.0, 3.0, 0.02);
+        let evidence = VesselEvidence::of(&image);
+        assert!(!evidence.pooled());
+        assert_eq!(*evidence.image, image);
+        assert!((evidence.noise_floor / (NOISE_FLOOR_SIGMAS * 0.02) - 1.0).abs() < 0.2, "{}", evidence.noise_floor);
+        // The same vessels under σ 0.2 are pooled.
+        let (noisy, _) = faint_vessel(1.0, 3.0, 0.2);
+        assert!(VesselEvidence::of(&noisy).pooled());
+    }
+
+    #[test]
+    fn the_pooled_floors_let_through_as_much_noise_as_three_sigma_per_pixel() {
+        let (along, least_varying) = pooled_floors_sigmas();
+        // Well below the per-pixel floor: a line's mean shrinks the noise by 2 to 3, the choice of
+        // the line lifts it a little.
+        for floor in [along, least_varying] {
+            assert!(floor > 0.8 && floor < 0.5 * NOISE_FLOOR_SIGMAS, "{floor}");
+        }
+        // An independent noise field: about the same share above the floor.
+        let (noise, _) = faint_vessel(0.0, 0.0, 0.2);
+        let evidence = VesselEvidence::of(&noise);
+        let share = evidence.mask(0.0).count() as f64 / noise.data.len() as f64;
+        assert!(share < 2.0 * FLOOR_TAIL, "{share}");
+    }
+
+    #[test]
+    fn a_vessel_under_the_per_pixel_floor_stands_out_along_its_line_without_widening() {
+        // 2 px wide at 2 σ: per pixel the 3 σ floor takes a sixth of it.
+        let sigma = 0.2;
+        let (image, on) = faint_vessel(2.0 * sigma, 2.0, sigma);
+        let per_pixel = above(&image, NOISE_FLOOR_SIGMAS * sigma);
+        let evidence = VesselEvidence::of(&image);
+        assert!(evidence.pooled());
+        let pooled = evidence.mask(0.0);
+        let count = |m: &Mask, vessel: bool| m.data.iter().zip(&on).filter(|&(&s, &v)| s && v == vessel).count();
+        let vessel_px = on.iter().filter(|&&v| v).count();
+        assert!(count(&per_pixel, true) * 5 < vessel_px, "per pixel {} of {vessel_px}", count(&per_pixel, true));
+        assert!(count(&pooled, true) * 10 > 3 * vessel_px, "pooled {} of {vessel_px}", count(&pooled, true));
+        assert!(count(&pooled, true) > 2 * count(&per_pixel, true));
+        // Off the vessel: about the background's share, and a few pixels along its edges.
+        let off_px = on.len() - vessel_px;
+        assert!((count(&pooled, false) as f64) < 2.0 * FLOOR_TAIL * off_px as f64 + 0.05 * vessel_px as f64);
+    }
+
+    #[test]
+    fn both_readings_keep_a_clean_band_and_nothing_beside_it() {
+        let (image, _) = faint_vessel(1.0, 3.0, 0.0);
+        let readings = line_readings(&image);
+        let n = image.width as usize;
+        let (sin, cos) = (30f64.to_radians()).sin_cos();
+        for reading in [&readings.along, &readings.least_varying] {
+            for (i, &v) in reading.data.iter().enumerate() {
+                let (x, y) = ((i % n) as f64 - 128.0, (i / n) as f64 - 128.0);
+                let from_axis = (-x * sin + y * cos).abs();
+                // (Lines that would leave the image are not read: the border is left out.)
+                let inside = x.abs() < 124.0 && y.abs() < 124.0;
+                if from_axis >= 2.5 && inside {
+                    assert_eq!(v, 0.0, "pixel {i} a pixel or more beside the band");
+                } else if from_axis < 0.5 && inside {
+                    assert_eq!(v, 1.0, "pixel {i} on the band's axis");
+                }
+            }
+        }
+    }
+}
