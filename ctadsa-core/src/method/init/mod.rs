@@ -102,8 +102,12 @@ pub fn n2_seeds(
     let evidence: Vec<VesselEvidence> = images.iter().map(VesselEvidence::of).collect();
     let levels: Vec<f64> = evidence.iter().map(|e| e.level(cfg.mask_threshold)).collect();
     let masks: Vec<Mask> = evidence.iter().map(|e| e.mask(cfg.mask_threshold)).collect();
-    let shown_images: Vec<Image> = evidence.into_iter().map(|e| e.image.into_owned()).collect();
-    let images = shown_images.as_slice();
+    let shown_images: Cow<'_, [Image]> = if evidence.iter().any(VesselEvidence::pooled) {
+        Cow::Owned(evidence.into_iter().map(|e| e.image.into_owned()).collect())
+    } else {
+        Cow::Borrowed(images)
+    };
+    let images = shown_images.as_ref();
     let intersect = cfg.n2_mode != SeedMode::ResidualUnion;
     let exclude = if cfg.n2_mode == SeedMode::AllViewsIntersect { None } else { solid.as_ref() };
     let shown = ResidualViews {
