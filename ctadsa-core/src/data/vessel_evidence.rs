@@ -117,7 +117,7 @@ const FLOOR_TAIL: f64 = 0.001_35;
 
 /// The floors of [`LineReadings::along`] and [`LineReadings::least_varying`] in units of the
 /// view's noise σ: the quantiles of the readings of unit white Gaussian noise that
-/// [`FLOOR_TAIL`] of it exceeds, from a seeded 512² field (the same numbers on every machine).
+/// 0.135 % of it exceeds, from a seeded 512² field (the same numbers on every machine).
 pub fn pooled_floors_sigmas() -> (f64, f64) {
     static FLOORS: OnceLock<(f64, f64)> = OnceLock::new();
     *FLOORS.get_or_init(|| {
