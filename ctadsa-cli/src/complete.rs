@@ -227,6 +227,13 @@ pub fn print_summary(summary: &RunSummary, out: &Path) {
             100.0 * r.noise
         );
     }
+    for r in summary.view_readings.iter().filter(|r| r.noise_sigma > 0.0) {
+        let share = r
+            .bright
+            .map_or(String::new(), |b| format!(" ({:.1} % of its bright value {b:.3})", 100.0 * r.noise_sigma / b));
+        let read = if r.pooled { "read along lines" } else { "read per pixel" };
+        println!("  view {}: noise σ {:.4} image units{share}, {read}", r.view, r.noise_sigma);
+    }
     if let Some(dropped) = summary.centreline.arrival_dropped_branches {
         println!(
             "  arrival check (two views): {dropped} new branches left out, their arrival differing between the views"

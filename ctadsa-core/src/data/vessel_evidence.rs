@@ -15,6 +15,7 @@ use std::sync::OnceLock;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
+use serde::Serialize;
 
 use crate::data::case::images::Image;
 use crate::data::masks::{Mask, NOISE_FLOOR_SIGMAS, above, noise_sigma};
@@ -148,6 +149,32 @@ fn shown_bright(image: &Image, floor: f64) -> Option<f64> {
     (!shown.is_empty()).then(|| percentile(&shown, 99.5))
 }
 
+/// How a view is read for its vessels, as a run reports it (`summary.json` → `view_readings`):
+/// its noise, its bright value and whether it is pooled ([`VesselEvidence::of`] decides by these
+/// numbers).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ViewReading {
+    /// The view's name in the case.
+    pub view: String,
+    /// The view's noise standard deviation ([`noise_sigma`]; image units, 0 for a noise-free view).
+    pub noise_sigma: f64,
+    /// Its bright value: the 99.5th percentile of its pixels above 0 and 3 σ (image units);
+    /// `None` where no pixel is.
+    pub bright: Option<f64>,
+    /// Read along lines: `noise_sigma` above [`POOLED_NOISE_SHARE`] × `bright`.
+    pub pooled: bool,
+}
+
+impl ViewReading {
+    /// The reading of `image`, the view named `view`.
+    pub fn of(image: &Image, view: &str) -> Self {
+        let noise_sigma = noise_sigma(image);
+        let bright = shown_bright(image, NOISE_FLOOR_SIGMAS * noise_sigma);
+        let pooled = noise_sigma > 0.0 && bright.is_some_and(|b| noise_sigma > POOLED_NOISE_SHARE * b);
+        Self { view: view.to_string(), noise_sigma, bright, pooled }
+    }
+}
+
 /// What a view shows of its vessels. A view whose noise is high against its vessels
 /// ([`POOLED_NOISE_SHARE`]): its [`LineReadings::along`], whose pixels count as vessel above the
 /// level where the [`LineReadings::least_varying`] mean stands above its own floor too (the
@@ -167,10 +194,10 @@ pub struct VesselEvidence<'a> {
 impl<'a> VesselEvidence<'a> {
     /// The evidence of `image`.
     pub fn of(image: &'a Image) -> Self {
-        let sigma = noise_sigma(image);
+        let reading = ViewReading::of(image, "");
+        let sigma = reading.noise_sigma;
         let per_pixel_floor = NOISE_FLOOR_SIGMAS * sigma;
-        let pool = sigma > 0.0 && shown_bright(image, per_pixel_floor).is_some_and(|b| sigma > POOLED_NOISE_SHARE * b);
-        if pool {
+        if reading.pooled {
             let readings = line_readings(image);
             let (along_floor, least_varying_floor) = pooled_floors_sigmas();
             Self {
@@ -266,6 +293,17 @@ mod tests {
         // The same vessels under σ 0.2 are pooled.
         let (noisy, _) = faint_vessel(1.0, 3.0, 0.2);
         assert!(VesselEvidence::of(&noisy).pooled());
+        // The run's report of each view says the same, with the numbers it was decided by.
+        let (quiet, loud) = (ViewReading::of(&image, "ap"), ViewReading::of(&noisy, "lat"));
+        assert_eq!((quiet.view.as_str(), quiet.pooled, loud.pooled), ("ap", false, true));
+        assert!((quiet.noise_sigma / 0.02 - 1.0).abs() < 0.2 && (loud.noise_sigma / 0.2 - 1.0).abs() < 0.2);
+        for reading in [&quiet, &loud] {
+            let bright = reading.bright.expect("the vessel shows");
+            assert_eq!(reading.pooled, reading.noise_sigma > POOLED_NOISE_SHARE * bright);
+        }
+        let (noise_free, _) = faint_vessel(1.0, 3.0, 0.0);
+        let clean = ViewReading::of(&noise_free, "oblique");
+        assert_eq!((clean.noise_sigma, clean.bright, clean.pooled), (0.0, Some(1.0), false));
     }
 
     #[test]

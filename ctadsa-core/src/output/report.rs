@@ -14,6 +14,7 @@ use crate::data::mesh::TriMesh;
 use crate::data::mesh::io::read_mesh;
 use crate::data::mesh::split::split_by_distance;
 use crate::data::run_folder::read_run_summary;
+use crate::data::vessel_evidence::POOLED_NOISE_SHARE;
 use crate::error::{CoreError, Result, read_file, write_file};
 use crate::eval::metrics::nearest_points;
 use crate::output::confidence::{
@@ -112,6 +113,7 @@ pub fn write_report(run_dir: &Path) -> Result<WrittenReport> {
     let mut body = String::new();
     inputs(&mut body, case.as_ref());
     arrival_readings(&mut body, &summary);
+    view_readings(&mut body, &summary);
     renders(&mut body, run_dir)?;
     completed_tree(&mut body, run_dir)?;
     interactive_view(&mut body, run_dir, case.as_ref(), case_dir.as_deref(), &mut left_out);
@@ -241,6 +243,43 @@ fn arrival_readings(html: &mut String, summary: &Value) {
             None => "–".into(),
         };
         let _ = write!(html, "<tr><td>{}</td><td>{noise}</td><td>{read}</td></tr>", text(&r["view"]));
+    }
+    html.push_str("</table>");
+}
+
+/// How the run read each view for its vessels (`view_readings` of summary.json): per pixel, or
+/// along lines where its noise is high against its vessels.
+fn view_readings(html: &mut String, summary: &Value) {
+    let Some(readings) = summary["view_readings"].as_array().filter(|r| !r.is_empty()) else { return };
+    let _ = write!(
+        html,
+        "<h2>Views: noise</h2><p>A view whose noise (σ, estimated from the view) exceeds {:.1} % of its \
+         bright value (the 99.5th percentile of its pixels above 3 σ) is read along lines of pixels through \
+         each pixel, which finds thin vessels under the per-pixel noise floor; the others pixel by pixel, \
+         above 3 σ.</p><table><tr><th>view</th><th>noise σ (image units)</th><th>bright value</th>\
+         <th>σ / bright</th><th>read</th></tr>",
+        100.0 * POOLED_NOISE_SHARE
+    );
+    for r in readings {
+        let number = |v: &Value| v.as_f64().filter(|x| x.is_finite());
+        let (sigma, bright) = (number(&r["noise_sigma"]), number(&r["bright"]));
+        let show = |x: Option<f64>| x.map_or("–".into(), |x| format!("{x:.4}"));
+        let share = match (sigma, bright) {
+            (Some(s), Some(b)) if b > 0.0 => format!("{:.1} %", 100.0 * s / b),
+            _ => "–".into(),
+        };
+        let read = match r["pooled"].as_bool() {
+            Some(true) => "along lines",
+            Some(false) => "per pixel",
+            None => "–",
+        };
+        let _ = write!(
+            html,
+            "<tr><td>{}</td><td>{}</td><td>{}</td><td>{share}</td><td>{read}</td></tr>",
+            text(&r["view"]),
+            show(sigma),
+            show(bright)
+        );
     }
     html.push_str("</table>");
 }
@@ -511,6 +550,7 @@ mod tests {
             "centreline": {"nodes": evil, "length_mm": evil, "new_length_mm": evil, "scores": {"recall": evil}},
             "pose_errors": [{"view": evil, "reprojection_before_px": evil}],
             "arrival_readings": [{"view": evil, "noise": evil, "median_px": evil}],
+            "view_readings": [{"view": evil, "noise_sigma": evil, "bright": evil, "pooled": evil}],
             "topology": {"cl_dice": evil, "components": evil, "true_components": [evil], "betti0_error": {"x": evil}},
         });
         std::fs::write(dir.join("summary.json"), summary.to_string()).unwrap();
@@ -537,6 +577,29 @@ mod tests {
         let page = std::fs::read_to_string(write_report(&dir).unwrap().path).unwrap();
         assert!(page.contains("<tr><td>ap</td><td>1.8 %</td><td>as it is</td></tr>"), "{page}");
         assert!(page.contains("<tr><td>lat</td><td>31.2 %</td><td>through a 3 × 3 median</td></tr>"), "{page}");
+    }
+
+    /// Each view's noise reading appears with its σ, bright value, their ratio and how it was read.
+    #[test]
+    fn view_readings_are_shown_per_view() {
+        let temp = tempfile::tempdir().unwrap();
+        let dir = temp.path().to_path_buf();
+        let summary = serde_json::json!({
+            "view_readings": [
+                {"view": "ap", "noise_sigma": 0.2, "bright": 8.0, "pooled": true},
+                {"view": "lat", "noise_sigma": 0.0, "bright": 12.5, "pooled": false},
+            ],
+        });
+        std::fs::write(dir.join("summary.json"), summary.to_string()).unwrap();
+        let page = std::fs::read_to_string(write_report(&dir).unwrap().path).unwrap();
+        assert!(
+            page.contains("<tr><td>ap</td><td>0.2000</td><td>8.0000</td><td>2.5 %</td><td>along lines</td></tr>"),
+            "{page}"
+        );
+        assert!(
+            page.contains("<tr><td>lat</td><td>0.0000</td><td>12.5000</td><td>0.0 %</td><td>per pixel</td></tr>"),
+            "{page}"
+        );
     }
 
     /// A file the page would show that is present but unreadable (a damaged mesh) is named at

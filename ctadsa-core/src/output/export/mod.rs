@@ -14,10 +14,11 @@ use std::path::Path;
 
 use crate::data::case::Case;
 use crate::data::mesh::io::write_mesh;
+use crate::data::vessel_evidence::ViewReading;
 use crate::data::volume::nifti_io::write_nifti;
 use crate::error::{Result, to_json, write_file};
 use crate::eval::score::{CaseTruth, EvalOptions};
-use crate::method::arrival::{prior_hidden_maps, run_arrival_maps, run_arrival_readings};
+use crate::method::arrival::{prior_hidden_maps, run_arrival_maps, run_arrival_readings, run_case};
 use crate::method::train::Trainer;
 use crate::method::training_time::TrainingTime;
 use crate::output::confidence::mesh_without_doubtful;
@@ -111,6 +112,13 @@ pub fn write_outputs(
         topology,
         pose_errors,
         arrival_readings: run_arrival_readings(case, cfg)?,
+        view_readings: run_case(case, cfg)?
+            .file
+            .views
+            .iter()
+            .zip(trainer.images())
+            .map(|(entry, image)| ViewReading::of(image, &entry.name))
+            .collect(),
     };
     let summary_path = dir.join("summary.json");
     write_file(&summary_path, to_json(&summary, &summary_path)?.as_bytes())?;

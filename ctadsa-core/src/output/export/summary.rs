@@ -3,6 +3,7 @@
 use serde::Serialize;
 
 use crate::data::projector::correction::PoseError;
+use crate::data::vessel_evidence::ViewReading;
 use crate::eval::metrics::RegionScores;
 use crate::eval::surface_metrics::Coverage;
 use crate::eval::topology::TopologyScores;
@@ -68,6 +69,9 @@ pub struct RunSummary {
     /// When the case has arrival maps: how noisy each of the run's views' map is and the median
     /// it was read through (`run.arrival_median_px`, `run.arrival_noisy_share`).
     pub arrival_readings: Option<Vec<ArrivalReading>>,
+    /// How each of the run's views was read for its vessels: its noise, its bright value and
+    /// whether it was read along lines ([`crate::data::vessel_evidence`]).
+    pub view_readings: Vec<ViewReading>,
 }
 
 /// A member of a run (`run.prior_only_member`, `run.member_seeds`).
