@@ -139,8 +139,9 @@ pub fn pooled_floors_sigmas() -> (f64, f64) {
 /// quarter above the level that `mask_threshold = 0.05` asks. Below it the per-pixel floor costs
 /// the masks little and the lines' loss of detail (vessel edges, bends) costs more: on the
 /// shared BraVa trees the views at σ = 0.1 lie at 0.009–0.019, those at σ = 0.2 at 0.015–0.032,
-/// and completions on pooled σ = 0.1 views scored worse than on per-pixel ones
-/// (docs/RESULTS.md, "Noisy views").
+/// and completions on pooled σ = 0.1 views scored worse than on per-pixel ones. At σ = 0.15
+/// (0.012–0.026) the share does not say where pooling pays: it did on one tree left per pixel
+/// and not on another (docs/RESULTS.md, "Noisy views").
 pub const POOLED_NOISE_SHARE: f64 = 0.021;
 
 /// The 99.5th percentile of the pixels of `image` above 0 and `floor`; `None` where none is.
