@@ -217,9 +217,9 @@ impl<'a> VesselEvidence<'a> {
     }
 
     /// `other` (an image of the same view, e.g. a residual) read as this view is: its
-    /// [`LineReadings::along`] when the view is pooled.
-    pub fn read<'b>(&self, other: &'b Image) -> Cow<'b, Image> {
-        if self.pooled() { Cow::Owned(line_readings(other).along) } else { Cow::Borrowed(other) }
+    /// [`LineReadings::along`] when the view is pooled, else itself.
+    pub fn read(&self, other: Image) -> Image {
+        if self.pooled() { line_readings(&other).along } else { other }
     }
 
     /// The view's bright value: the 99.5th percentile of the evidence's positive pixels, in a

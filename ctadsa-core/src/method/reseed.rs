@@ -79,7 +79,7 @@ pub fn residual_seeds(
     // Each view's residual read as its target is (pooled along the vessels where noisy), against
     // the target's vessel level.
     let evidence: Vec<VesselEvidence> = inputs.targets.iter().map(VesselEvidence::of).collect();
-    let residuals: Vec<Image> = residuals.iter().zip(&evidence).map(|(r, e)| e.read(r).into_owned()).collect();
+    let residuals: Vec<Image> = residuals.into_iter().zip(&evidence).map(|(r, e)| e.read(r)).collect();
     let support: Vec<Mask> = residuals
         .iter()
         .zip(&evidence)
