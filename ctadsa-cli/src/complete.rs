@@ -11,6 +11,7 @@ use clap::Args;
 use ctadsa_core::config::Config;
 use ctadsa_core::data::case::Case;
 use ctadsa_core::data::synth::{SynthConfig, synthesize_replacing};
+use ctadsa_core::data::vessel_evidence::Reading;
 use ctadsa_core::method::train::{StepLog, Trainer};
 use ctadsa_core::output::export::RunSummary;
 use ctadsa_core::run::completion::{self, Monitor, Outcome, Start};
@@ -231,7 +232,11 @@ pub fn print_summary(summary: &RunSummary, out: &Path) {
         let share = r
             .bright
             .map_or(String::new(), |b| format!(" ({:.1} % of its bright value {b:.3})", 100.0 * r.noise_sigma / b));
-        let read = if r.pooled { "read along lines" } else { "read per pixel" };
+        let read = match r.reading {
+            Reading::PerPixel => "read per pixel",
+            Reading::AlongLines => "read along lines",
+            Reading::UnderFloorAlongLines => "its pixels under 3 σ read along lines",
+        };
         println!("  view {}: noise σ {:.4} image units{share}, {read}", r.view, r.noise_sigma);
     }
     if let Some(dropped) = summary.centreline.arrival_dropped_branches {

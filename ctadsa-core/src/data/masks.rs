@@ -102,10 +102,10 @@ pub fn noise_sigma(image: &Image) -> f64 {
     f64::from(*median) / (0.674_489_75 * std::f64::consts::SQRT_2)
 }
 
-/// Vessel mask of an image: its [`VesselEvidence`] above the level at `threshold` (a fraction of
-/// the bright percentile, clear of the view's noise).
-pub fn vessel_mask(image: &Image, threshold: f64) -> Mask {
-    VesselEvidence::of(image).mask(threshold)
+/// The vessel masks of a run's views: each view's [`VesselEvidence`] above the level at
+/// `threshold` (a fraction of the bright percentile, clear of the view's noise).
+pub fn vessel_masks(images: &[Image], threshold: f64) -> Vec<Mask> {
+    VesselEvidence::of_views(images).iter().map(|e| e.mask(threshold)).collect()
 }
 
 /// The pixels of `image` above `level` (and above 0).
@@ -238,14 +238,14 @@ mod tests {
     fn the_vessel_mask_stays_clear_of_the_noise() {
         // Clean: the threshold's fraction of the bright percentile, as before.
         let clean = banded_view(0.0);
-        assert!((VesselEvidence::of(&clean).level(0.05) - 0.1).abs() < 1e-9);
+        assert!((VesselEvidence::of(&clean, 3).level(0.05) - 0.1).abs() < 1e-9);
         // Noisy: at 0.05 × P99.5 (≈ 0.11) the mask would take a seventh of the background (σ = 0.1);
         // the level rises to the noise floor and keeps the background out, the vessels in.
         let noisy = banded_view(0.1);
-        let evidence = VesselEvidence::of(&noisy);
+        let evidence = VesselEvidence::of(&noisy, 3);
         assert!(evidence.noise_floor > 0.1, "{}", evidence.noise_floor);
         assert_eq!(evidence.level(0.05), evidence.noise_floor);
-        let mask = vessel_mask(&noisy, 0.05);
+        let mask = vessel_masks(std::slice::from_ref(&noisy), 0.05).remove(0);
         let n = noisy.width as usize;
         let (mut background, mut vessel) = (0usize, 0usize);
         for (i, &m) in mask.data.iter().enumerate() {

@@ -4,10 +4,13 @@
 //! per-pixel noise floor (3 σ) while the line of pixels it belongs to does not. Read along lines
 //! of [`LINE_PX`] pixels through each pixel in [`ORIENTATIONS`] directions ([`LineReadings`]),
 //! a straight vessel keeps its value and the noise shrinks by two to three: the masks find
-//! vessels at under half the per-pixel floor. Pooling also loses detail (vessel edges and
-//! bends), so only views whose noise is high against their vessels are pooled
-//! ([`POOLED_NOISE_SHARE`]); the others, noise-free ones ([`noise_sigma`] 0) among them, are read
-//! per pixel.
+//! vessels at under half the per-pixel floor. The lines also lose detail (vessel edges and
+//! bends) and widen a vessel by the pixels beside it, so a pooled view reads along lines only
+//! the pixels that do not clear 3 σ on their own, and of those only the ones that lean to vessel
+//! themselves ([`POOLED_PIXEL_SIGMAS`]); the rest keep their values. With two views every pixel
+//! of a noisy view is read along lines ([`Reading`]). Views whose noise is low against their
+//! vessels ([`POOLED_NOISE_SHARE`], [`POOLED_NOISE_SHARE_TWO_VIEWS`]), noise-free ones
+//! ([`noise_sigma`] 0) among them, are read per pixel.
 
 use std::borrow::Cow;
 use std::sync::OnceLock;
@@ -134,15 +137,20 @@ pub fn pooled_floors_sigmas() -> (f64, f64) {
     })
 }
 
-/// A view is pooled when its noise σ exceeds this share of its bright value (the 99.5th
-/// percentile of its pixels above 3 σ), i.e. where the per-pixel floor lies more than about a
-/// quarter above the level that `mask_threshold = 0.05` asks. Below it the per-pixel floor costs
-/// the masks little and the lines' loss of detail (vessel edges, bends) costs more: on the
-/// shared BraVa trees the views at σ = 0.1 lie at 0.009–0.019, those at σ = 0.2 at 0.015–0.032,
-/// and completions on pooled σ = 0.1 views scored worse than on per-pixel ones. At σ = 0.15
-/// (0.012–0.026) the share does not say where pooling pays: it did on one tree left per pixel
-/// and not on another (docs/RESULTS.md, "Noisy views").
+/// In a run with three views or more a view is pooled when its noise σ exceeds this share of
+/// its bright value (the 99.5th percentile of its pixels above 3 σ), i.e. where the per-pixel floor
+/// lies more than about a quarter above the level that `mask_threshold = 0.05` asks. On the shared
+/// BraVa trees the views at σ = 0.1 lie at 0.009–0.019, at σ = 0.15 at 0.012–0.026, at σ = 0.2 at
+/// 0.015–0.032; pooled under 3 σ, a σ = 0.1 tree scored worse than per pixel and the σ = 0.15 trees
+/// better in the mean, at the same shares: the share does not say where pooling pays between the
+/// two (docs/RESULTS.md, "Noisy views").
 pub const POOLED_NOISE_SHARE: f64 = 0.021;
+
+/// In a run with two views a view is pooled (wholly along lines) when its noise σ exceeds this
+/// share of its bright value: every view of the shared BraVa trees at σ = 0.1, 0.15 and 0.2 (the
+/// lowest 0.009), where pooled views scored better than per-pixel ones at each noise level
+/// (docs/RESULTS.md, "Noisy views"); below it, not measured, a view is read per pixel.
+pub const POOLED_NOISE_SHARE_TWO_VIEWS: f64 = 0.008;
 
 /// The 99.5th percentile of the pixels of `image` above 0 and `floor`; `None` where none is.
 fn shown_bright(image: &Image, floor: f64) -> Option<f64> {
@@ -150,9 +158,40 @@ fn shown_bright(image: &Image, floor: f64) -> Option<f64> {
     (!shown.is_empty()).then(|| percentile(&shown, 99.5))
 }
 
+/// How a view's pixels are read for its vessels.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Reading {
+    /// Each pixel its own value, above 3 σ ([`NOISE_FLOOR_SIGMAS`]): noise-free views and views
+    /// whose noise is low against their vessels ([`POOLED_NOISE_SHARE`],
+    /// [`POOLED_NOISE_SHARE_TWO_VIEWS`]).
+    PerPixel,
+    /// Each pixel its line reading ([`LineReadings::along`]), counted as vessel where its least
+    /// varying line stands above its floor too: a noisy view of a run with two views, which needs every
+    /// pixel of a thin vessel (two views have no third to place a vessel whose mask breaks up).
+    AlongLines,
+    /// The pixels under 3 σ their line readings, the others their own values ([`pooled_evidence`]):
+    /// a noisy view of a run with three views or more, which keeps the vessels' edges and bends.
+    UnderFloorAlongLines,
+}
+
+impl Reading {
+    /// How a view whose noise is `noise_sigma` and bright value `bright` (image units) is read in
+    /// a run with `views` views.
+    pub fn of(noise_sigma: f64, bright: Option<f64>, views: usize) -> Self {
+        let share = if views <= 2 { POOLED_NOISE_SHARE_TWO_VIEWS } else { POOLED_NOISE_SHARE };
+        let noisy = noise_sigma > 0.0 && bright.is_some_and(|b| noise_sigma > share * b);
+        match (noisy, views) {
+            (false, _) => Self::PerPixel,
+            (true, 0..=2) => Self::AlongLines,
+            (true, _) => Self::UnderFloorAlongLines,
+        }
+    }
+}
+
 /// How a view is read for its vessels, as a run reports it (`summary.json` → `view_readings`):
-/// its noise, its bright value and whether it is pooled ([`VesselEvidence::of`] decides by these
-/// numbers).
+/// its noise, its bright value and its [`Reading`] ([`VesselEvidence::of`] decides by these
+/// numbers and the run's view count).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct ViewReading {
     /// The view's name in the case.
@@ -162,71 +201,140 @@ pub struct ViewReading {
     /// Its bright value: the 99.5th percentile of its pixels above 0 and 3 σ (image units);
     /// `None` where no pixel is.
     pub bright: Option<f64>,
-    /// Read along lines: `noise_sigma` above [`POOLED_NOISE_SHARE`] × `bright`.
-    pub pooled: bool,
+    /// How its pixels are read.
+    pub reading: Reading,
 }
 
 impl ViewReading {
-    /// The reading of `image`, the view named `view`.
-    pub fn of(image: &Image, view: &str) -> Self {
+    /// The reading of `image`, the view named `view`, in a run with `views` views.
+    pub fn of(image: &Image, view: &str, views: usize) -> Self {
         let noise_sigma = noise_sigma(image);
         let bright = shown_bright(image, NOISE_FLOOR_SIGMAS * noise_sigma);
-        let pooled = noise_sigma > 0.0 && bright.is_some_and(|b| noise_sigma > POOLED_NOISE_SHARE * b);
-        Self { view: view.to_string(), noise_sigma, bright, pooled }
+        Self { view: view.to_string(), noise_sigma, bright, reading: Reading::of(noise_sigma, bright, views) }
     }
 }
 
-/// What a view shows of its vessels. A view whose noise is high against its vessels
-/// ([`POOLED_NOISE_SHARE`]): its [`LineReadings::along`], whose pixels count as vessel above the
-/// level where the [`LineReadings::least_varying`] mean stands above its own floor too (the
-/// second reading keeps the first from widening the vessels). Any other view: the image itself,
-/// its pixels above the level and 3 σ ([`NOISE_FLOOR_SIGMAS`]; 0 for a noise-free view).
+/// How many noise σ a pixel of a pooled view must itself stand above 0 for its line's reading to
+/// count: beside a vessel the best of the lines through a background pixel reads the vessel's
+/// edge, and such a pixel passes this in 6.7 % of cases; a pixel of a vessel of 2 σ in 69 %, of
+/// 3 σ in 93 %. It keeps the pooled masks from widening the vessels and from lowering the
+/// iso-level matched to them (docs/RESULTS.md, "Noisy views").
+pub const POOLED_PIXEL_SIGMAS: f64 = 1.5;
+
+/// A view read [`Reading::UnderFloorAlongLines`] at noise `sigma` (image units): each pixel above
+/// the per-pixel floor (3 σ) its own value; a pixel above [`POOLED_PIXEL_SIGMAS`] whose least
+/// varying line stands above its floor too its [`LineReadings::along`]; any other pixel 0 (it
+/// shows nothing the noise could not).
+pub fn pooled_evidence(image: &Image, sigma: f64) -> Image {
+    let readings = line_readings(image);
+    let (_, least_varying_floor) = pooled_floors_sigmas();
+    let (own_floor, pixel_floor, settled_floor) =
+        (NOISE_FLOOR_SIGMAS * sigma, POOLED_PIXEL_SIGMAS * sigma, least_varying_floor * sigma);
+    let data = (image.data.iter().zip(&readings.along.data).zip(&readings.least_varying.data))
+        .map(|((&own, &along), &least_varying)| {
+            if own as f64 > own_floor {
+                own
+            } else if own as f64 > pixel_floor && least_varying as f64 > settled_floor {
+                along
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    Image { width: image.width, height: image.height, data }
+}
+
+/// What a view shows of its vessels, read as its [`Reading`] says: per pixel, every pixel along
+/// lines, or the pixels under 3 σ along lines ([`pooled_evidence`]) with their floor at 1.2 σ
+/// ([`pooled_floors_sigmas`]); 0 for a noise-free view.
 #[derive(Debug, Clone)]
 pub struct VesselEvidence<'a> {
     /// The values a vessel is read from (image units).
     pub image: Cow<'a, Image>,
     /// The level below which no pixel of `image` counts as vessel whatever the threshold asks
-    /// (image units; 3 σ per pixel, 0 for a noise-free view).
+    /// (image units; 3 σ per pixel, the line reading's floor pooled, 0 for a noise-free view).
     pub noise_floor: f64,
-    /// Pooled views: the pixels whose least varying line stands above its floor.
+    /// How the view is read.
+    pub reading: Reading,
+    /// The view's noise σ (image units).
+    sigma: f64,
+    /// The bright value of `image` ([`Self::bright`]).
+    bright: Option<f64>,
+    /// Read [`Reading::AlongLines`]: the pixels whose least varying line stands above its floor.
     settled: Option<Mask>,
 }
 
 impl<'a> VesselEvidence<'a> {
-    /// The evidence of `image`.
-    pub fn of(image: &'a Image) -> Self {
-        let reading = ViewReading::of(image, "");
-        let sigma = reading.noise_sigma;
-        let per_pixel_floor = NOISE_FLOOR_SIGMAS * sigma;
-        if reading.pooled {
-            let readings = line_readings(image);
-            let (along_floor, least_varying_floor) = pooled_floors_sigmas();
-            Self {
-                image: Cow::Owned(readings.along),
-                noise_floor: along_floor * sigma,
-                settled: Some(above(&readings.least_varying, least_varying_floor * sigma)),
+    /// The evidence of `image`, a view of a run with `views` views.
+    pub fn of(image: &'a Image, views: usize) -> Self {
+        let sigma = noise_sigma(image);
+        let reading = Reading::of(sigma, shown_bright(image, NOISE_FLOOR_SIGMAS * sigma), views);
+        let (along_floor, least_varying_floor) = pooled_floors_sigmas();
+        match reading {
+            Reading::PerPixel => Self::per_pixel(image),
+            Reading::AlongLines => {
+                let readings = line_readings(image);
+                let noise_floor = along_floor * sigma;
+                Self {
+                    bright: shown_bright(&readings.along, noise_floor),
+                    settled: Some(above(&readings.least_varying, least_varying_floor * sigma)),
+                    image: Cow::Owned(readings.along),
+                    noise_floor,
+                    reading,
+                    sigma,
+                }
             }
-        } else {
-            Self { image: Cow::Borrowed(image), noise_floor: per_pixel_floor, settled: None }
+            Reading::UnderFloorAlongLines => Self {
+                image: Cow::Owned(pooled_evidence(image, sigma)),
+                noise_floor: along_floor * sigma,
+                reading,
+                sigma,
+                bright: shown_bright(image, 0.0),
+                settled: None,
+            },
         }
     }
 
-    /// Whether the view was pooled.
+    /// The evidence of `image` read per pixel whatever its noise: its pixels above the level and
+    /// 3 σ ([`NOISE_FLOOR_SIGMAS`]).
+    pub fn per_pixel(image: &'a Image) -> Self {
+        let sigma = noise_sigma(image);
+        Self {
+            image: Cow::Borrowed(image),
+            noise_floor: NOISE_FLOOR_SIGMAS * sigma,
+            reading: Reading::PerPixel,
+            sigma,
+            bright: shown_bright(image, 0.0),
+            settled: None,
+        }
+    }
+
+    /// The evidence of each of a run's views.
+    pub fn of_views(images: &'a [Image]) -> Vec<Self> {
+        images.iter().map(|image| Self::of(image, images.len())).collect()
+    }
+
+    /// Whether the view was pooled (read along lines, wholly or under 3 σ).
     pub fn pooled(&self) -> bool {
-        self.settled.is_some()
+        self.reading != Reading::PerPixel
     }
 
-    /// `other` (an image of the same view, e.g. a residual) read as this view is: its
-    /// [`LineReadings::along`] when the view is pooled, else itself.
+    /// `other` (an image of the same view, e.g. a residual) read as this view is, at the view's
+    /// noise.
     pub fn read(&self, other: Image) -> Image {
-        if self.pooled() { line_readings(&other).along } else { other }
+        match self.reading {
+            Reading::PerPixel => other,
+            Reading::AlongLines => line_readings(&other).along,
+            Reading::UnderFloorAlongLines => pooled_evidence(&other, self.sigma),
+        }
     }
 
-    /// The view's bright value: the 99.5th percentile of the evidence's positive pixels, in a
-    /// pooled view of those above the noise floor (there the best of the lines lifts most of the
-    /// background above 0 and would pull the percentile down); `None` where no pixel counts.
+    /// The view's bright value: the 99.5th percentile of the positive pixels of the view itself
+    /// (read per pixel or under 3 σ along lines, so that those readings move no level), or of its
+    /// line readings above the noise floor (read wholly along lines: there the best of the lines
+    /// lifts most of the background above 0); `None` where no pixel counts.
     pub fn bright(&self) -> Option<f64> {
-        shown_bright(&self.image, if self.pooled() { self.noise_floor } else { 0.0 })
+        self.bright
     }
 
     /// The image value that defines "vessel": `threshold ×` [`Self::bright`], and at least the
@@ -235,13 +343,13 @@ impl<'a> VesselEvidence<'a> {
         self.bright().map_or(0.0, |bright| (threshold * bright).max(self.noise_floor))
     }
 
-    /// Whether pixel `i` (row-major) may count as vessel beside its value: always in a view
-    /// read per pixel; in a pooled one where its least varying line stands above its floor.
+    /// Whether pixel `i` (row-major) may count as vessel beside its value: always, except in a
+    /// view read wholly along lines, where its least varying line must stand above its floor.
     pub fn settled_at(&self, i: usize) -> bool {
         self.settled.as_ref().is_none_or(|m| m.data[i])
     }
 
-    /// The vessel pixels: the evidence above [`Self::level`] (and, pooled, settled).
+    /// The vessel pixels: the evidence above [`Self::level`] (and settled).
     pub fn mask(&self, threshold: f64) -> Mask {
         let above_level = above(&self.image, self.level(threshold));
         match &self.settled {
@@ -275,36 +383,47 @@ mod tests {
     #[test]
     fn a_noise_free_view_is_read_as_it_is() {
         let (image, _) = faint_vessel(1.0, 2.0, 0.0);
-        let evidence = VesselEvidence::of(&image);
-        assert!(!evidence.pooled());
-        assert_eq!(evidence.noise_floor, 0.0);
-        assert_eq!(*evidence.image, image);
-        assert_eq!(evidence.mask(0.5), crate::data::masks::vessel_mask(&image, 0.5));
+        for views in [2, 3] {
+            let evidence = VesselEvidence::of(&image, views);
+            assert!(!evidence.pooled());
+            assert_eq!(evidence.noise_floor, 0.0);
+            assert_eq!(*evidence.image, image);
+            let masks = crate::data::masks::vessel_masks(&vec![image.clone(); views], 0.5);
+            assert_eq!(evidence.mask(0.5), masks[0]);
+        }
     }
 
     #[test]
     fn a_view_with_little_noise_against_its_vessels_is_read_per_pixel() {
-        // σ 0.02 against vessels of 1: the per-pixel floor (0.06) lies under the level the
+        // σ 0.005 against vessels of 1: the per-pixel floor (0.015) lies far under the level the
         // threshold asks (0.05), and the view is read as it is.
-        let (image, _) = faint_vessel(1.0, 3.0, 0.02);
-        let evidence = VesselEvidence::of(&image);
+        let (image, _) = faint_vessel(1.0, 3.0, 0.005);
+        let evidence = VesselEvidence::of(&image, 3);
         assert!(!evidence.pooled());
         assert_eq!(*evidence.image, image);
-        assert!((evidence.noise_floor / (NOISE_FLOOR_SIGMAS * 0.02) - 1.0).abs() < 0.2, "{}", evidence.noise_floor);
-        // The same vessels under σ 0.2 are pooled.
+        assert!((evidence.noise_floor / (NOISE_FLOOR_SIGMAS * 0.005) - 1.0).abs() < 0.2, "{}", evidence.noise_floor);
+        // The same vessels under σ 0.2 are pooled: wholly along lines with two views, under 3 σ
+        // with three.
         let (noisy, _) = faint_vessel(1.0, 3.0, 0.2);
-        assert!(VesselEvidence::of(&noisy).pooled());
+        assert_eq!(VesselEvidence::of(&noisy, 2).reading, Reading::AlongLines);
+        assert_eq!(VesselEvidence::of(&noisy, 3).reading, Reading::UnderFloorAlongLines);
         // The run's report of each view says the same, with the numbers it was decided by.
-        let (quiet, loud) = (ViewReading::of(&image, "ap"), ViewReading::of(&noisy, "lat"));
-        assert_eq!((quiet.view.as_str(), quiet.pooled, loud.pooled), ("ap", false, true));
-        assert!((quiet.noise_sigma / 0.02 - 1.0).abs() < 0.2 && (loud.noise_sigma / 0.2 - 1.0).abs() < 0.2);
+        let (quiet, loud) = (ViewReading::of(&image, "ap", 3), ViewReading::of(&noisy, "lat", 3));
+        assert_eq!(
+            (quiet.view.as_str(), quiet.reading, loud.reading),
+            ("ap", Reading::PerPixel, Reading::UnderFloorAlongLines)
+        );
+        assert_eq!(ViewReading::of(&noisy, "lat", 2).reading, Reading::AlongLines);
+        assert!((quiet.noise_sigma / 0.005 - 1.0).abs() < 0.2 && (loud.noise_sigma / 0.2 - 1.0).abs() < 0.2);
         for reading in [&quiet, &loud] {
             let bright = reading.bright.expect("the vessel shows");
-            assert_eq!(reading.pooled, reading.noise_sigma > POOLED_NOISE_SHARE * bright);
+            assert_eq!(reading.reading != Reading::PerPixel, reading.noise_sigma > POOLED_NOISE_SHARE * bright);
+            let two_views = Reading::of(reading.noise_sigma, reading.bright, 2);
+            assert_eq!(two_views != Reading::PerPixel, reading.noise_sigma > POOLED_NOISE_SHARE_TWO_VIEWS * bright);
         }
         let (noise_free, _) = faint_vessel(1.0, 3.0, 0.0);
-        let clean = ViewReading::of(&noise_free, "oblique");
-        assert_eq!((clean.noise_sigma, clean.bright, clean.pooled), (0.0, Some(1.0), false));
+        let clean = ViewReading::of(&noise_free, "oblique", 2);
+        assert_eq!((clean.noise_sigma, clean.bright, clean.reading), (0.0, Some(1.0), Reading::PerPixel));
     }
 
     #[test]
@@ -317,9 +436,12 @@ mod tests {
         }
         // An independent noise field: about the same share above the floor.
         let (noise, _) = faint_vessel(0.0, 0.0, 0.2);
-        let evidence = VesselEvidence::of(&noise);
-        let share = evidence.mask(0.0).count() as f64 / noise.data.len() as f64;
-        assert!(share < 2.0 * FLOOR_TAIL, "{share}");
+        for views in [2, 3] {
+            let evidence = VesselEvidence::of(&noise, views);
+            assert!(evidence.pooled());
+            let share = evidence.mask(0.0).count() as f64 / noise.data.len() as f64;
+            assert!(share < 2.0 * FLOOR_TAIL, "{views} views: {share}");
+        }
     }
 
     #[test]
@@ -328,17 +450,58 @@ mod tests {
         let sigma = 0.2;
         let (image, on) = faint_vessel(2.0 * sigma, 2.0, sigma);
         let per_pixel = above(&image, NOISE_FLOOR_SIGMAS * sigma);
-        let evidence = VesselEvidence::of(&image);
-        assert!(evidence.pooled());
-        let pooled = evidence.mask(0.0);
         let count = |m: &Mask, vessel: bool| m.data.iter().zip(&on).filter(|&(&s, &v)| s && v == vessel).count();
         let vessel_px = on.iter().filter(|&&v| v).count();
         assert!(count(&per_pixel, true) * 5 < vessel_px, "per pixel {} of {vessel_px}", count(&per_pixel, true));
-        assert!(count(&pooled, true) * 10 > 3 * vessel_px, "pooled {} of {vessel_px}", count(&pooled, true));
-        assert!(count(&pooled, true) > 2 * count(&per_pixel, true));
-        // Off the vessel: about the background's share, and a few pixels along its edges.
-        let off_px = on.len() - vessel_px;
-        assert!((count(&pooled, false) as f64) < 2.0 * FLOOR_TAIL * off_px as f64 + 0.05 * vessel_px as f64);
+        // Wholly along lines (two views) and under 3 σ (three).
+        for views in [2, 3] {
+            let evidence = VesselEvidence::of(&image, views);
+            assert!(evidence.pooled());
+            let pooled = evidence.mask(0.0);
+            eprintln!("{views} views: pooled {} of {vessel_px}, {} off", count(&pooled, true), count(&pooled, false));
+            assert!(
+                count(&pooled, true) * 10 > 3 * vessel_px,
+                "{views} views: pooled {} of {vessel_px}",
+                count(&pooled, true)
+            );
+            assert!(count(&pooled, true) > 2 * count(&per_pixel, true));
+            // Off the vessel: about the background's share, and a few pixels along its edges.
+            let off_px = on.len() - vessel_px;
+            assert!((count(&pooled, false) as f64) < 2.0 * FLOOR_TAIL * off_px as f64 + 0.05 * vessel_px as f64);
+        }
+    }
+
+    #[test]
+    fn a_bright_vessel_keeps_its_pixels_and_its_width_in_a_pooled_view() {
+        // A 6 px vessel of 1 under σ 0.05: pooled (σ over 2.1 % of the bright value), yet every
+        // pixel above 3 σ keeps its own value, and the mask is as wide as the per-pixel one.
+        let sigma = 0.05;
+        let (image, on) = faint_vessel(1.0, 6.0, sigma);
+        let evidence = VesselEvidence::of(&image, 3);
+        assert_eq!(evidence.reading, Reading::UnderFloorAlongLines);
+        let estimated = noise_sigma(&image);
+        for (i, (&own, &read)) in image.data.iter().zip(&evidence.image.data).enumerate() {
+            if own as f64 > NOISE_FLOOR_SIGMAS * estimated {
+                assert_eq!(read, own, "pixel {i}");
+            }
+        }
+        let beside = |m: &Mask| m.data.iter().zip(&on).filter(|&(&s, &v)| s && !v).count();
+        let (pooled, per_pixel) = (evidence.mask(0.05), VesselEvidence::per_pixel(&image).mask(0.05));
+        let vessel_px = on.iter().filter(|&&v| v).count();
+        // The line readings alone put a pixel or more beside the vessel into the mask along both
+        // its edges (350 pixels against 100 of the noise per pixel); the pooled evidence few more
+        // than the per-pixel one (130).
+        let along_only = above(&line_readings(&image).along, evidence.level(0.05));
+        assert!(beside(&along_only) * 20 > vessel_px, "the line readings widen: {}", beside(&along_only));
+        let (pooled_beside, per_pixel_beside, along_beside) =
+            (beside(&pooled), beside(&per_pixel), beside(&along_only));
+        eprintln!("beside the vessel: pooled {pooled_beside}, per pixel {per_pixel_beside}, along only {along_beside}");
+        assert!(
+            (pooled_beside - per_pixel_beside.min(pooled_beside)) * 5 < along_beside - per_pixel_beside,
+            "pooled {pooled_beside}, per pixel {per_pixel_beside}, along only {along_beside}"
+        );
+        // The bright value and so the level are the view's own.
+        assert_eq!(evidence.bright(), VesselEvidence::per_pixel(&image).bright());
     }
 
     #[test]

@@ -28,7 +28,7 @@ use serde::{Deserialize, Serialize};
 use crate::config::{Config, SeedMode};
 use crate::data::case::Case;
 use crate::data::case::images::Image;
-use crate::data::masks::{Mask, pixel_of, prior_solid, silhouettes, vessel_mask};
+use crate::data::masks::{Mask, pixel_of, prior_solid, silhouettes, vessel_masks};
 use crate::data::mesh::distance::SurfaceIndex;
 use crate::data::mesh::io::read_mesh;
 use crate::data::run_folder::read_run_summary;
@@ -201,7 +201,7 @@ pub struct ClassifiedPoint {
 /// Classifies the missing centreline (points every ≤ 0.1 mm): the share of each class and the
 /// class of every point.
 pub fn diagnose(missing: &[Segment], inp: &DiagnoseInputs) -> (LossBreakdown, Vec<ClassifiedPoint>) {
-    let masks: Vec<Mask> = inp.images.iter().map(|i| vessel_mask(i, inp.mask_threshold)).collect();
+    let masks: Vec<Mask> = vessel_masks(inp.images, inp.mask_threshold);
     let points = centreline_points(missing);
     let centres: Vec<DVec3> = points.iter().map(|p| p.position_mm).collect();
     let to_seed = nearest_distances(&centres, inp.seeds);
@@ -305,7 +305,7 @@ pub fn seed_coverage(
     seeds: &[DVec3],
     truth: &SurfaceIndex,
 ) -> SeedCoverage {
-    let masks: Vec<Mask> = images.iter().map(|i| vessel_mask(i, mask_threshold)).collect();
+    let masks: Vec<Mask> = vessel_masks(images, mask_threshold);
     let points = centreline_points(missing);
     let centres: Vec<DVec3> = points.iter().map(|p| p.position_mm).collect();
     let to_seed = nearest_distances(&centres, seeds);
@@ -467,7 +467,7 @@ pub fn diagnose_run(case: &Case, run_dir: &Path) -> Result<Diagnosis> {
     let centreline = if swc.exists() { Some(read_swc(&swc)?.tree) } else { None };
     let new_centreline = match (&centreline, &truth.centreline) {
         (Some(tree), Some(whole)) => {
-            let masks: Vec<Mask> = images.iter().map(|i| vessel_mask(i, cfg.init.mask_threshold)).collect();
+            let masks: Vec<Mask> = vessel_masks(&images, cfg.init.mask_threshold);
             Some(new_centreline(tree, whole, views.views(), &masks))
         }
         _ => None,

@@ -78,7 +78,7 @@ pub fn residual_seeds(
         .collect();
     // Each view's residual read as its target is (pooled along the vessels where noisy), against
     // the target's vessel level.
-    let evidence: Vec<VesselEvidence> = inputs.targets.iter().map(VesselEvidence::of).collect();
+    let evidence: Vec<VesselEvidence> = VesselEvidence::of_views(inputs.targets);
     let residuals: Vec<Image> = residuals.into_iter().zip(&evidence).map(|(r, e)| e.read(r)).collect();
     let support: Vec<Mask> = residuals
         .iter()

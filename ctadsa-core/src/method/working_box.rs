@@ -8,7 +8,7 @@ use glam::DVec3;
 use rayon::prelude::*;
 
 use crate::data::case::images::Image;
-use crate::data::masks::{Mask, vessel_mask};
+use crate::data::masks::{Mask, vessel_masks};
 use crate::data::mesh::TriMesh;
 use crate::data::volume::BoxMm;
 use crate::error::{CoreError, Result};
@@ -52,7 +52,7 @@ pub fn working_box_from_inputs(
     prior: Option<&TriMesh>,
     mask_threshold: f64,
 ) -> Result<BoxMm> {
-    let masks: Vec<Mask> = images.iter().map(|i| vessel_mask(i, mask_threshold).dilated(HULL_DILATION_PX)).collect();
+    let masks: Vec<Mask> = vessel_masks(images, mask_threshold).iter().map(|m| m.dilated(HULL_DILATION_PX)).collect();
     let r = scan_half_width(views);
     if !(r > 0.0 && r.is_finite()) {
         return Err(CoreError::invalid("the views see no region around the isocentre"));

@@ -15,7 +15,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::data::case::images::Image;
-use crate::data::masks::{Mask, vessel_mask};
+use crate::data::masks::{Mask, vessel_masks};
 use crate::data::mesh::TriMesh;
 use crate::data::mesh::distance::SurfaceIndex;
 use crate::data::mesh::voxelize::voxelize_mesh;
@@ -85,7 +85,7 @@ impl LevelReach {
     /// One score per candidate level ([`LEVEL_FRACTIONS`], in order): the mean over the views of
     /// the Dice of the level's silhouette and the vessel mask at `mask_threshold`.
     pub fn scores(&self, images: &[Image], mask_threshold: f64) -> Vec<LevelScore> {
-        let masks: Vec<Mask> = images.iter().map(|i| vessel_mask(i, mask_threshold)).collect();
+        let masks: Vec<Mask> = vessel_masks(images, mask_threshold);
         LEVEL_FRACTIONS
             .iter()
             .map(|&fraction| {
@@ -285,7 +285,7 @@ mod tests {
         mask_threshold: f64,
         keep: Option<&Volume<u8>>,
     ) -> Vec<LevelScore> {
-        let masks: Vec<Mask> = images.iter().map(|i| vessel_mask(i, mask_threshold)).collect();
+        let masks: Vec<Mask> = vessel_masks(images, mask_threshold);
         let scale = density_scale(volume);
         LEVEL_FRACTIONS
             .iter()

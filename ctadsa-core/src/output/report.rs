@@ -14,7 +14,7 @@ use crate::data::mesh::TriMesh;
 use crate::data::mesh::io::read_mesh;
 use crate::data::mesh::split::split_by_distance;
 use crate::data::run_folder::read_run_summary;
-use crate::data::vessel_evidence::POOLED_NOISE_SHARE;
+use crate::data::vessel_evidence::{POOLED_NOISE_SHARE, POOLED_NOISE_SHARE_TWO_VIEWS};
 use crate::error::{CoreError, Result, read_file, write_file};
 use crate::eval::metrics::nearest_points;
 use crate::output::confidence::{
@@ -254,11 +254,13 @@ fn view_readings(html: &mut String, summary: &Value) {
     let _ = write!(
         html,
         "<h2>Views: noise</h2><p>A view whose noise (σ, estimated from the view) exceeds {:.1} % of its \
-         bright value (the 99.5th percentile of its pixels above 3 σ) is read along lines of pixels through \
-         each pixel, which finds thin vessels under the per-pixel noise floor; the others pixel by pixel, \
-         above 3 σ.</p><table><tr><th>view</th><th>noise σ (image units)</th><th>bright value</th>\
-         <th>σ / bright</th><th>read</th></tr>",
-        100.0 * POOLED_NOISE_SHARE
+         bright value (the 99.5th percentile of its pixels above 3 σ; {:.1} % in a run with two views) is \
+         read along lines of pixels, which finds thin vessels under the per-pixel noise floor: with two \
+         views every pixel, with three or more only the pixels under 3 σ (the others keep their own values, \
+         and the vessels their edges); the other views pixel by pixel, above 3 σ.</p><table><tr><th>view</th>\
+         <th>noise σ (image units)</th><th>bright value</th><th>σ / bright</th><th>read</th></tr>",
+        100.0 * POOLED_NOISE_SHARE,
+        100.0 * POOLED_NOISE_SHARE_TWO_VIEWS
     );
     for r in readings {
         let number = |v: &Value| v.as_f64().filter(|x| x.is_finite());
@@ -268,10 +270,11 @@ fn view_readings(html: &mut String, summary: &Value) {
             (Some(s), Some(b)) if b > 0.0 => format!("{:.1} %", 100.0 * s / b),
             _ => "–".into(),
         };
-        let read = match r["pooled"].as_bool() {
-            Some(true) => "along lines",
-            Some(false) => "per pixel",
-            None => "–",
+        let read = match r["reading"].as_str() {
+            Some("per_pixel") => "per pixel",
+            Some("along_lines") => "along lines",
+            Some("under_floor_along_lines") => "under 3 σ along lines",
+            _ => "–",
         };
         let _ = write!(
             html,
@@ -550,7 +553,7 @@ mod tests {
             "centreline": {"nodes": evil, "length_mm": evil, "new_length_mm": evil, "scores": {"recall": evil}},
             "pose_errors": [{"view": evil, "reprojection_before_px": evil}],
             "arrival_readings": [{"view": evil, "noise": evil, "median_px": evil}],
-            "view_readings": [{"view": evil, "noise_sigma": evil, "bright": evil, "pooled": evil}],
+            "view_readings": [{"view": evil, "noise_sigma": evil, "bright": evil, "reading": evil}],
             "topology": {"cl_dice": evil, "components": evil, "true_components": [evil], "betti0_error": {"x": evil}},
         });
         std::fs::write(dir.join("summary.json"), summary.to_string()).unwrap();
@@ -586,18 +589,25 @@ mod tests {
         let dir = temp.path().to_path_buf();
         let summary = serde_json::json!({
             "view_readings": [
-                {"view": "ap", "noise_sigma": 0.2, "bright": 8.0, "pooled": true},
-                {"view": "lat", "noise_sigma": 0.0, "bright": 12.5, "pooled": false},
+                {"view": "ap", "noise_sigma": 0.2, "bright": 8.0, "reading": "under_floor_along_lines"},
+                {"view": "lat", "noise_sigma": 0.0, "bright": 12.5, "reading": "per_pixel"},
+                {"view": "oblique", "noise_sigma": 0.1, "bright": 9.0, "reading": "along_lines"},
             ],
         });
         std::fs::write(dir.join("summary.json"), summary.to_string()).unwrap();
         let page = std::fs::read_to_string(write_report(&dir).unwrap().path).unwrap();
         assert!(
-            page.contains("<tr><td>ap</td><td>0.2000</td><td>8.0000</td><td>2.5 %</td><td>along lines</td></tr>"),
+            page.contains(
+                "<tr><td>ap</td><td>0.2000</td><td>8.0000</td><td>2.5 %</td><td>under 3 σ along lines</td></tr>"
+            ),
             "{page}"
         );
         assert!(
             page.contains("<tr><td>lat</td><td>0.0000</td><td>12.5000</td><td>0.0 %</td><td>per pixel</td></tr>"),
+            "{page}"
+        );
+        assert!(
+            page.contains("<tr><td>oblique</td><td>0.1000</td><td>9.0000</td><td>1.1 %</td><td>along lines</td></tr>"),
             "{page}"
         );
     }

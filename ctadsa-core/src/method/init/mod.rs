@@ -99,7 +99,7 @@ pub fn n2_seeds(
     }
     // What the views show of their vessels (pooled along them where noisy): everything below
     // reads these, their levels and masks.
-    let evidence: Vec<VesselEvidence> = images.iter().map(VesselEvidence::of).collect();
+    let evidence: Vec<VesselEvidence> = VesselEvidence::of_views(images);
     let levels: Vec<f64> = evidence.iter().map(|e| e.level(cfg.mask_threshold)).collect();
     let masks: Vec<Mask> = evidence.iter().map(|e| e.mask(cfg.mask_threshold)).collect();
     let shown_images: Cow<'_, [Image]> = if evidence.iter().any(VesselEvidence::pooled) {

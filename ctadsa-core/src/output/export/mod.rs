@@ -117,7 +117,7 @@ pub fn write_outputs(
             .views
             .iter()
             .zip(trainer.images())
-            .map(|(entry, image)| ViewReading::of(image, &entry.name))
+            .map(|(entry, image)| ViewReading::of(image, &entry.name, trainer.images().len()))
             .collect(),
     };
     let summary_path = dir.join("summary.json");

@@ -70,7 +70,7 @@ pub struct RunSummary {
     /// it was read through (`run.arrival_median_px`, `run.arrival_noisy_share`).
     pub arrival_readings: Option<Vec<ArrivalReading>>,
     /// How each of the run's views was read for its vessels: its noise, its bright value and
-    /// whether it was read along lines ([`crate::data::vessel_evidence`]).
+    /// whether its pixels under 3 σ were read along lines ([`crate::data::vessel_evidence`]).
     pub view_readings: Vec<ViewReading>,
 }
 
