@@ -267,11 +267,10 @@ pub struct VesselEvidence<'a> {
 impl<'a> VesselEvidence<'a> {
     /// The evidence of `image`, a view of a run with `views` views.
     pub fn of(image: &'a Image, views: usize) -> Self {
-        let sigma = noise_sigma(image);
-        let reading = Reading::of(sigma, shown_bright(image, NOISE_FLOOR_SIGMAS * sigma), views);
+        let ViewReading { noise_sigma: sigma, reading, .. } = ViewReading::of(image, "", views);
         let (along_floor, least_varying_floor) = pooled_floors_sigmas();
         match reading {
-            Reading::PerPixel => Self::per_pixel(image),
+            Reading::PerPixel => Self::per_pixel(image, sigma),
             Reading::AlongLines => {
                 let readings = line_readings(image);
                 let noise_floor = along_floor * sigma;
@@ -295,10 +294,9 @@ impl<'a> VesselEvidence<'a> {
         }
     }
 
-    /// The evidence of `image` read per pixel whatever its noise: its pixels above the level and
-    /// 3 σ ([`NOISE_FLOOR_SIGMAS`]).
-    pub fn per_pixel(image: &'a Image) -> Self {
-        let sigma = noise_sigma(image);
+    /// The evidence of `image`, whose noise is `sigma`, read per pixel: its pixels above the
+    /// level and 3 σ ([`NOISE_FLOOR_SIGMAS`]).
+    fn per_pixel(image: &'a Image, sigma: f64) -> Self {
         Self {
             image: Cow::Borrowed(image),
             noise_floor: NOISE_FLOOR_SIGMAS * sigma,
@@ -486,7 +484,7 @@ mod tests {
             }
         }
         let beside = |m: &Mask| m.data.iter().zip(&on).filter(|&(&s, &v)| s && !v).count();
-        let (pooled, per_pixel) = (evidence.mask(0.05), VesselEvidence::per_pixel(&image).mask(0.05));
+        let (pooled, per_pixel) = (evidence.mask(0.05), VesselEvidence::per_pixel(&image, estimated).mask(0.05));
         let vessel_px = on.iter().filter(|&&v| v).count();
         // The line readings alone put a pixel or more beside the vessel into the mask along both
         // its edges (350 pixels against 100 of the noise per pixel); the pooled evidence few more
@@ -501,7 +499,7 @@ mod tests {
             "pooled {pooled_beside}, per pixel {per_pixel_beside}, along only {along_beside}"
         );
         // The bright value and so the level are the view's own.
-        assert_eq!(evidence.bright(), VesselEvidence::per_pixel(&image).bright());
+        assert_eq!(evidence.bright(), VesselEvidence::per_pixel(&image, estimated).bright());
     }
 
     #[test]
