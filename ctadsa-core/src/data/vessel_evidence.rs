@@ -143,13 +143,16 @@ pub fn pooled_floors_sigmas() -> (f64, f64) {
 /// BraVa trees the views at σ = 0.1 lie at 0.009–0.019, at σ = 0.15 at 0.012–0.026, at σ = 0.2 at
 /// 0.015–0.032; pooled under 3 σ, a σ = 0.1 tree scored worse than per pixel and the σ = 0.15 trees
 /// better in the mean, at the same shares: the share does not say where pooling pays between the
-/// two (docs/RESULTS.md, "Noisy views").
+/// two (docs/RESULTS.md, "Noisy views"). A run with one view above it reads all its views so
+/// ([`ViewReading::of_run`]).
 pub const POOLED_NOISE_SHARE: f64 = 0.021;
 
 /// In a run with two views a view is pooled (wholly along lines) when its noise σ exceeds this
 /// share of its bright value: every view of the shared BraVa trees at σ = 0.1, 0.15 and 0.2 (the
-/// lowest 0.009), where pooled views scored better than per-pixel ones at each noise level
-/// (docs/RESULTS.md, "Noisy views"); below it, not measured, a view is read per pixel.
+/// lowest 0.009). Pooled, the 4 BG trees scored better than per pixel at σ = 0.15 and 0.2 on both
+/// CD_ROI and HD95_ROI; at σ = 0.1 all 8 trees scored HD95_ROI better on 6 of 8 and CD_ROI about
+/// the same (4 of 8; docs/RESULTS.md, "Noisy views"). Below it, not measured, a view is read per
+/// pixel.
 pub const POOLED_NOISE_SHARE_TWO_VIEWS: f64 = 0.008;
 
 /// The 99.5th percentile of the pixels of `image` above 0 and `floor`; `None` where none is.
@@ -162,9 +165,9 @@ fn shown_bright(image: &Image, floor: f64) -> Option<f64> {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Reading {
-    /// Each pixel its own value, above 3 σ ([`NOISE_FLOOR_SIGMAS`]): noise-free views and views
-    /// whose noise is low against their vessels ([`POOLED_NOISE_SHARE`],
-    /// [`POOLED_NOISE_SHARE_TWO_VIEWS`]).
+    /// Each pixel its own value, above 3 σ ([`NOISE_FLOOR_SIGMAS`]): noise-free views, and the
+    /// views of a run none of whose views' noise is high against its vessels
+    /// ([`POOLED_NOISE_SHARE`], [`POOLED_NOISE_SHARE_TWO_VIEWS`]).
     PerPixel,
     /// Each pixel its line reading ([`LineReadings::along`]), counted as vessel where its least
     /// varying line stands above its floor too: a noisy view of a run with two views, which needs every
@@ -206,11 +209,30 @@ pub struct ViewReading {
 }
 
 impl ViewReading {
-    /// The reading of `image`, the view named `view`, in a run with `views` views.
+    /// The reading of `image`, the view named `view`, on its own in a run with `views` views.
     pub fn of(image: &Image, view: &str, views: usize) -> Self {
         let noise_sigma = noise_sigma(image);
         let bright = shown_bright(image, NOISE_FLOOR_SIGMAS * noise_sigma);
         Self { view: view.to_string(), noise_sigma, bright, reading: Reading::of(noise_sigma, bright, views) }
+    }
+
+    /// The readings of a run's views (`images`, named `names`): a run reads its views one way.
+    /// Where any view is noisy ([`Reading::of`]) every view with noise is read as the view count
+    /// says; views read differently (one per pixel beside pooled ones) scored worse than all
+    /// pooled on every tree measured (docs/RESULTS.md, "Noisy views").
+    pub fn of_run(images: &[Image], names: &[&str]) -> Vec<Self> {
+        let views = images.len();
+        let mut readings: Vec<Self> = images
+            .iter()
+            .enumerate()
+            .map(|(i, image)| Self::of(image, names.get(i).copied().unwrap_or(""), views))
+            .collect();
+        if let Some(pooled) = readings.iter().map(|r| r.reading).find(|&r| r != Reading::PerPixel) {
+            for reading in readings.iter_mut().filter(|r| r.noise_sigma > 0.0) {
+                reading.reading = pooled;
+            }
+        }
+        readings
     }
 }
 
@@ -265,9 +287,15 @@ pub struct VesselEvidence<'a> {
 }
 
 impl<'a> VesselEvidence<'a> {
-    /// The evidence of `image`, a view of a run with `views` views.
+    /// The evidence of `image`, on its own a view of a run with `views` views (a run's views:
+    /// [`Self::of_views`]).
     pub fn of(image: &'a Image, views: usize) -> Self {
-        let ViewReading { noise_sigma: sigma, reading, .. } = ViewReading::of(image, "", views);
+        let ViewReading { noise_sigma, reading, .. } = ViewReading::of(image, "", views);
+        Self::read_as(image, noise_sigma, reading)
+    }
+
+    /// The evidence of `image`, whose noise is `sigma`, read as `reading` says.
+    fn read_as(image: &'a Image, sigma: f64, reading: Reading) -> Self {
         let (along_floor, least_varying_floor) = pooled_floors_sigmas();
         match reading {
             Reading::PerPixel => Self::per_pixel(image, sigma),
@@ -307,9 +335,10 @@ impl<'a> VesselEvidence<'a> {
         }
     }
 
-    /// The evidence of each of a run's views.
+    /// The evidence of each of a run's views, read as [`ViewReading::of_run`] says.
     pub fn of_views(images: &'a [Image]) -> Vec<Self> {
-        images.iter().map(|image| Self::of(image, images.len())).collect()
+        let readings = ViewReading::of_run(images, &[]);
+        images.iter().zip(readings).map(|(image, r)| Self::read_as(image, r.noise_sigma, r.reading)).collect()
     }
 
     /// Whether the view was pooled (read along lines, wholly or under 3 σ).
@@ -422,6 +451,31 @@ mod tests {
         let (noise_free, _) = faint_vessel(1.0, 3.0, 0.0);
         let clean = ViewReading::of(&noise_free, "oblique", 2);
         assert_eq!((clean.noise_sigma, clean.bright, clean.reading), (0.0, Some(1.0), Reading::PerPixel));
+    }
+
+    #[test]
+    fn a_run_reads_its_views_one_way() {
+        // One quiet view (σ 0.005, per pixel on its own) beside two noisy ones: with the noisy
+        // views in the run, the quiet one is read as they are; a noise-free view stays as it is.
+        let (quiet, _) = faint_vessel(1.0, 3.0, 0.005);
+        let (noisy, _) = faint_vessel(1.0, 3.0, 0.2);
+        let (noise_free, _) = faint_vessel(1.0, 3.0, 0.0);
+        assert_eq!(ViewReading::of(&quiet, "ap", 3).reading, Reading::PerPixel);
+        let images = [quiet.clone(), noisy.clone(), noisy.clone()];
+        let run = ViewReading::of_run(&images, &["ap", "lat", "oblique"]);
+        assert_eq!(run.iter().map(|r| r.view.as_str()).collect::<Vec<_>>(), ["ap", "lat", "oblique"]);
+        assert!(run.iter().all(|r| r.reading == Reading::UnderFloorAlongLines), "{run:?}");
+        let evidence = VesselEvidence::of_views(&images);
+        assert!(evidence.iter().all(|e| e.reading == Reading::UnderFloorAlongLines));
+        assert_eq!(*evidence[0].image, pooled_evidence(&quiet, run[0].noise_sigma));
+        // Two views: the quiet one wholly along lines.
+        let pair = ViewReading::of_run(&images[..2], &["ap", "lat"]);
+        assert!(pair.iter().all(|r| r.reading == Reading::AlongLines), "{pair:?}");
+        // A noise-free view in a noisy run, and a run with no noisy view.
+        let mixed = ViewReading::of_run(&[noise_free.clone(), noisy.clone(), noisy], &[]);
+        assert_eq!(mixed.iter().map(|r| r.reading).collect::<Vec<_>>()[0], Reading::PerPixel);
+        let calm = ViewReading::of_run(&[quiet.clone(), noise_free, quiet], &[]);
+        assert!(calm.iter().all(|r| r.reading == Reading::PerPixel), "{calm:?}");
     }
 
     #[test]

@@ -58,11 +58,10 @@ impl LossTargets {
         let mut cs = Vec::with_capacity(v);
         let mut gs = Vec::with_capacity(v * w * h);
         let mut weights = Vec::with_capacity(v * w * h);
-        for img in images {
+        for (img, evidence) in images.iter().zip(VesselEvidence::of_views(images)) {
             target.extend_from_slice(&img.data);
             // g: the image over the view's bright value; vessel pixels: the view's vessel evidence
             // at its level at τ (g ≥ τ, and clear of the view's noise).
-            let evidence = VesselEvidence::of(img, v);
             let c = evidence.bright().unwrap_or(max as f64) as f32;
             cs.push(c);
             let g: Vec<f32> = img.data.iter().map(|&x| (x / c).clamp(0.0, 1.0)).collect();

@@ -248,7 +248,7 @@ fn arrival_readings(html: &mut String, summary: &Value) {
 }
 
 /// How the run read each view for its vessels (`view_readings` of summary.json): per pixel, or
-/// along lines where its noise is high against its vessels.
+/// along lines where the noise of a view of the run is high against its vessels.
 fn view_readings(html: &mut String, summary: &Value) {
     let Some(readings) = summary["view_readings"].as_array().filter(|r| !r.is_empty()) else { return };
     let _ = write!(
@@ -257,7 +257,8 @@ fn view_readings(html: &mut String, summary: &Value) {
          bright value (the 99.5th percentile of its pixels above 3 σ; {:.1} % in a run with two views) is \
          read along lines of pixels, which finds thin vessels under the per-pixel noise floor: with two \
          views every pixel, with three or more only the pixels under 3 σ (the others keep their own values, \
-         and the vessels their edges); the other views pixel by pixel, above 3 σ.</p><table><tr><th>view</th>\
+         and the vessels their edges). A run reads its views one way: where any view is read along lines, \
+         so is every view with noise. Otherwise views are read pixel by pixel, above 3 σ.</p><table><tr><th>view</th>\
          <th>noise σ (image units)</th><th>bright value</th><th>σ / bright</th><th>read</th></tr>",
         100.0 * POOLED_NOISE_SHARE,
         100.0 * POOLED_NOISE_SHARE_TWO_VIEWS

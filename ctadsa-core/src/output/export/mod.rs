@@ -112,13 +112,10 @@ pub fn write_outputs(
         topology,
         pose_errors,
         arrival_readings: run_arrival_readings(case, cfg)?,
-        view_readings: run_case(case, cfg)?
-            .file
-            .views
-            .iter()
-            .zip(trainer.images())
-            .map(|(entry, image)| ViewReading::of(image, &entry.name, trainer.images().len()))
-            .collect(),
+        view_readings: ViewReading::of_run(
+            trainer.images(),
+            &run_case(case, cfg)?.file.views.iter().map(|entry| entry.name.as_str()).collect::<Vec<_>>(),
+        ),
     };
     let summary_path = dir.join("summary.json");
     write_file(&summary_path, to_json(&summary, &summary_path)?.as_bytes())?;
