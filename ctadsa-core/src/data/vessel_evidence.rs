@@ -193,8 +193,8 @@ impl Reading {
 }
 
 /// How a view is read for its vessels, as a run reports it (`summary.json` → `view_readings`):
-/// its noise, its bright value and its [`Reading`] ([`VesselEvidence::of`] decides by these
-/// numbers and the run's view count).
+/// its noise, its bright value and its [`Reading`] ([`ViewReading::of_run`] decides by these
+/// numbers, the run's view count and its other views).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct ViewReading {
     /// The view's name in the case.
@@ -287,9 +287,10 @@ pub struct VesselEvidence<'a> {
 }
 
 impl<'a> VesselEvidence<'a> {
-    /// The evidence of `image`, on its own a view of a run with `views` views (a run's views:
-    /// [`Self::of_views`]).
-    pub fn of(image: &'a Image, views: usize) -> Self {
+    /// The evidence of `image`, on its own a view of a run with `views` views (the tests' view
+    /// by view; a run reads its views through [`Self::of_views`]).
+    #[cfg(test)]
+    pub(crate) fn of(image: &'a Image, views: usize) -> Self {
         let ViewReading { noise_sigma, reading, .. } = ViewReading::of(image, "", views);
         Self::read_as(image, noise_sigma, reading)
     }
