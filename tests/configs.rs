@@ -175,9 +175,9 @@ fn shipped_configs_load_and_matrices_point_at_them() {
         format!("{quick:?}"),
         "quick-512.toml changes only the budget, the seeds' prior, count and arrival checks, the members and the centreline's tracing"
     );
-    // The paper's budget (paper.toml) is quick-512's method with the paper's iterations, one view
-    // per step, its hash table and field learning rate, quick-512's schedule at the same
-    // fractions of the run and the prior-only member stopped early, nothing else.
+    // The paper's budget (paper.toml) is quick-512's method and field with the paper's
+    // iterations, one view per step, quick-512's schedule at the same fractions of the run and the
+    // prior-only member stopped early, nothing else.
     let fine = Config::load(Some(&root.join("quick-512.toml")), &[]).unwrap();
     let method = Config::load(Some(&root.join("baselines/paper-method.toml")), &[]).unwrap();
     let mut budget = Config::load(Some(&root.join("paper.toml")), &[]).unwrap();
@@ -196,8 +196,11 @@ fn shipped_configs_load_and_matrices_point_at_them() {
         assert!((fraction(at_budget, n) - fraction(at_fine, fine.run.iterations)).abs() < 1e-9);
     }
     assert_eq!(budget.densify.reseed_at.len(), fine.densify.reseed_at.len());
-    assert_eq!(budget.field.encoding, method.field.encoding);
-    assert_eq!(budget.optim.lr_field, method.optim.lr_field);
+    // quick-512's field and its learning rate, not the paper's (docs/RESULTS.md, "Which part of
+    // the budget costs").
+    assert_ne!(fine.field.encoding, method.field.encoding);
+    assert_eq!(budget.field.encoding, fine.field.encoding);
+    assert_eq!(budget.optim.lr_field, fine.optim.lr_field);
     assert!(budget.run.member_iterations > 0 && budget.run.member_iterations < n);
     assert_eq!(budget.prior_only_member().unwrap().run.steps_to_train(), budget.run.member_iterations);
     // The FN term stays off as in quick-512; its start is the paper's.
@@ -210,11 +213,9 @@ fn shipped_configs_load_and_matrices_point_at_them() {
         (fine.densify.from, fine.densify.until, fine.densify.every);
     budget.densify.reseed_at = fine.densify.reseed_at.clone();
     (budget.loss.pa_start, budget.loss.fn_start) = (fine.loss.pa_start, fine.loss.fn_start);
-    budget.field.encoding = fine.field.encoding;
-    budget.optim.lr_field = fine.optim.lr_field;
     assert_eq!(
         format!("{budget:?}"),
         format!("{fine:?}"),
-        "paper.toml changes only quick-512's budget, its hash table and field learning rate, and the member's length"
+        "paper.toml changes only quick-512's budget and the member's length"
     );
 }
