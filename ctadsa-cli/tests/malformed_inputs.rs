@@ -351,6 +351,12 @@ fn malformed_case_files_are_refused_and_nothing_escapes() {
     for case in &cases {
         refused(&dir, &["complete", "--case", case, "--config", &config, "--out", "out/run"], &["case.json"]);
     }
+    // The folder holding those cases given as a case: named as a folder of cases.
+    refused(
+        &dir,
+        &["complete", "--case", ".", "--config", &config, "--out", "out/run"],
+        &["not a case folder", "absolute-view, angle-past-a-turn, bad-geometry and"],
+    );
     let cut = dir.join("truncated");
     copy_dir(valid_case(), &cut);
     let text = std::fs::read(cut.join("case.json")).unwrap();

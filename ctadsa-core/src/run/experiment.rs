@@ -12,7 +12,9 @@ use burn::tensor::Device;
 use serde::Deserialize;
 
 use crate::config::Config;
-use crate::data::case::{CASE_FILE, Case, CaseFile, FNV1A_START, MAX_VIEWS, PriorEntry, fnv1a, fnv1a_file, text_hash};
+use crate::data::case::{
+    CASE_FILE, Case, CaseFile, FNV1A_START, MAX_VIEWS, PriorEntry, fnv1a, fnv1a_file, refuse_folder_of_cases, text_hash,
+};
 use crate::error::{CoreError, Result, check_file_name, read_file, to_json, write_file};
 use crate::eval::metrics::SurfaceScores;
 use crate::output::export::RunSummary;
@@ -318,6 +320,7 @@ impl Experiment {
             let case_name =
                 case_dir.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_else(|| "case".into());
             check_file_name(&case_name, "case folder name").map_err(CoreError::invalid)?;
+            refuse_folder_of_cases(case_dir)?;
             // A view the case does not have fails each of its cells: refused when the matrix is
             // read. (A case that cannot be read yet says so in its cells.)
             let file = case_file(case_dir);
@@ -611,6 +614,30 @@ mod tests {
         std::fs::remove_file(&image).unwrap();
         assert!(std::process::Command::new("mkfifo").arg(&image).status().is_ok_and(|s| s.success()));
         assert_ne!(load().cells[0].case_files, cell.case_files);
+    }
+
+    /// `cases/` given for `cases/*`: refused when the matrix is read, naming the cases inside.
+    #[test]
+    fn a_folder_of_cases_given_as_a_case_is_refused() {
+        let temp = tempfile::tempdir().unwrap();
+        let dir = temp.path().to_path_buf();
+        let config = concat!(env!("CARGO_MANIFEST_DIR"), "/../configs/quick.toml");
+        let matrix = dir.join("m.toml");
+        std::fs::write(&matrix, format!("views = [[0, 1]]\n[[methods]]\nname = \"m\"\nconfig = \"{config}\"\n"))
+            .unwrap();
+        for name in ["A", "B", "C", "D"] {
+            std::fs::create_dir_all(dir.join("cases").join(name)).unwrap();
+            std::fs::write(dir.join("cases").join(name).join(CASE_FILE), "{}").unwrap();
+        }
+        std::fs::create_dir_all(dir.join("cases/notes")).unwrap();
+        let load = |case: &str| Experiment::load(&matrix, &[dir.join(case)], &dir.join("out"), &[]);
+        let err = load("cases").expect_err("a folder of cases is not a case").to_string();
+        assert!(err.contains("cases") && err.contains("not a case folder"), "{err}");
+        assert!(err.contains("A, B, C and 1 more") && err.contains("cases/A"), "{err}");
+        // A case folder, one that does not exist yet and one that holds no case are laid out.
+        assert_eq!(load("cases/A").unwrap().cells.len(), 1);
+        assert_eq!(load("later").unwrap().cells.len(), 1);
+        assert_eq!(load("cases/notes").unwrap().cells.len(), 1);
     }
 
     #[test]

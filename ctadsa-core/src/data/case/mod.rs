@@ -409,9 +409,42 @@ impl CaseFile {
     }
 }
 
+/// Refuses a folder that has no `case.json` but holds case folders (`cases/` given for
+/// `cases/BG0002`), naming some of them, so that the mistake reads as what it is rather than as
+/// a missing file. Other folders pass, whether they exist or not. At most 4,096 entries are
+/// looked at, so a huge folder costs no time.
+pub fn refuse_folder_of_cases(dir: &Path) -> Result<()> {
+    const MAX_ENTRIES_LOOKED_AT: usize = 4096;
+    const NAMED: usize = 3;
+    if dir.join(CASE_FILE).exists() {
+        return Ok(());
+    }
+    let Ok(entries) = std::fs::read_dir(dir) else { return Ok(()) };
+    let mut held: Vec<String> = entries
+        .take(MAX_ENTRIES_LOOKED_AT)
+        .flatten()
+        .filter(|e| e.path().join(CASE_FILE).is_file())
+        .map(|e| e.file_name().to_string_lossy().to_string())
+        .collect();
+    held.sort();
+    let Some(first) = held.first() else { return Ok(()) };
+    let example = dir.join(first);
+    let more = if held.len() > NAMED { format!(" and {} more", held.len() - NAMED) } else { String::new() };
+    held.truncate(NAMED);
+    Err(CoreError::format(
+        dir,
+        format!(
+            "not a case folder (no {CASE_FILE}) but a folder of cases ({}{more}): name a case folder itself, e.g. `{}`",
+            held.join(", "),
+            example.display()
+        ),
+    ))
+}
+
 impl Case {
     /// Reads `dir/case.json` and all view images; checks geometry, image sizes and pixels.
     pub fn load(dir: &Path) -> Result<Self> {
+        refuse_folder_of_cases(dir)?;
         let path = dir.join(CASE_FILE);
         let text = String::from_utf8(read_file(&path)?).map_err(|_| CoreError::format(&path, "not UTF-8 text"))?;
         let file = CaseFile::parse(&text, &path)?;
