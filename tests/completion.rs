@@ -11,8 +11,9 @@ use ctadsa_core::config::{AdamImpl, Config};
 use ctadsa_core::data::case::Case;
 use ctadsa_core::data::synth::{SynthConfig, synthesize};
 use ctadsa_core::method::train::{StepLog, Trainer};
-use ctadsa_core::output::export::{RunSummary, write_outputs};
+use ctadsa_core::output::export::{RunModels, RunSummary, write_outputs};
 use ctadsa_core::run::completion::{Monitor, Outcome, Silent, Start, run_completion};
+use ctadsa_core::run::ensemble::run_ensemble;
 
 mod scratch;
 use scratch::scratch;
@@ -698,6 +699,76 @@ fn the_members_are_trained_resumed_and_averaged_in() {
     assert!(a.iter().zip(&s).any(|(x, y)| (x - y).abs() > 0.01 * scale), "the two seeds differ");
 }
 
+#[test]
+fn finished_runs_are_averaged_as_an_ensemble() {
+    let iterations = 20;
+    let base = scratch("ensemble");
+    let device = Device::ndarray().autodiff();
+    let finish = |cfg: Config, name: &str| -> RunSummary {
+        match run_completion(tiny_case(), cfg, device.clone(), &base.join(name), Start::Overwrite, &mut Silent)
+            .expect("run")
+        {
+            Outcome::Finished(s) => *s,
+            Outcome::Interrupted { .. } => panic!("not asked to stop"),
+        }
+    };
+    let cfg = tiny_config(iterations);
+    let mut seven = cfg.clone();
+    seven.run.seed = 7;
+    let mut member = cfg.clone();
+    member.run.prior_only_member = true;
+    let mut two_views = cfg.clone();
+    two_views.run.views = vec![0, 1];
+    let alone = finish(cfg.clone(), "alone");
+    finish(seven, "seven");
+    finish(member, "member");
+    finish(two_views, "two-views");
+    let ensemble = |runs: &[&str], out: &str, overwrite: bool| {
+        let runs: Vec<PathBuf> = runs.iter().map(|r| base.join(r)).collect();
+        run_ensemble(tiny_case(), &runs, device.clone(), &base.join(out), overwrite, &mut Silent)
+    };
+    // Two runs alone: the mean of their densities; the first run's Gaussians.
+    let summary = ensemble(&["alone", "seven"], "ens", false).expect("ensemble");
+    assert_eq!(summary.gaussians, alone.gaussians);
+    assert_eq!(summary.ensemble_runs, ["alone", "seven"].map(|r| base.join(r).display().to_string()));
+    assert!(alone.ensemble_runs.is_empty());
+    let report = std::fs::read_to_string(base.join("ens").join("report.html")).unwrap();
+    assert!(report.contains("An ensemble of 2 finished runs"), "the report says what it shows");
+    let [mean, a, s, m] = ["ens", "alone", "seven", "member"].map(|d| written_density(&base.join(d)));
+    let scale = a.iter().fold(0f32, |x, v| x.max(v.abs()));
+    let worst = |expected: &dyn Fn(usize) -> f32, got: &[f32]| {
+        got.iter().enumerate().map(|(i, g)| (g - expected(i)).abs()).fold(0f32, f32::max)
+    };
+    let off = worst(&|i| 0.5 * (a[i] + s[i]), &mean);
+    assert!(off <= 1e-5 * scale, "the mean of the two runs: off by {off} of {scale}");
+    assert!(a.iter().zip(&s).any(|(x, y)| (x - y).abs() > 0.01 * scale), "the two runs differ");
+    // A run with a prior-only member counts as its own density (its members' mean), one vote.
+    ensemble(&["member", "seven"], "ens-member", false).expect("ensemble with a member");
+    let with_member = written_density(&base.join("ens-member"));
+    let off = worst(&|i| 0.5 * (m[i] + s[i]), &with_member);
+    assert!(off <= 1e-5 * scale, "the member's run as one vote: off by {off} of {scale}");
+    // What is refused, naming the folder: outputs there already, a run named twice, one run,
+    // the output folder one of the runs, other views, a folder that is no run, a run not finished.
+    let err = |r: ctadsa_core::error::Result<RunSummary>| r.expect_err("refused").to_string();
+    assert!(err(ensemble(&["alone", "seven"], "ens", false)).contains("--overwrite"));
+    ensemble(&["seven", "alone"], "ens", true).expect("--overwrite replaces an earlier ensemble");
+    assert!(err(ensemble(&["alone", "alone"], "ens", true)).contains("the same run"));
+    assert!(err(ensemble(&["alone"], "ens", true)).contains("2 to"));
+    assert!(err(ensemble(&["alone", "seven"], "seven", true)).contains("one of the runs"));
+    assert!(err(ensemble(&["alone", "seven"], "member", true)).contains("checkpoints"));
+    assert!(err(ensemble(&["alone", "two-views"], "ens", true)).contains("same views"));
+    std::fs::create_dir_all(base.join("empty")).unwrap();
+    assert!(err(ensemble(&["alone", "empty"], "ens", true)).contains("not a finished run"));
+    copy_dir(&base.join("alone"), &base.join("short"));
+    let config = base.join("short").join("config.toml");
+    let text = std::fs::read_to_string(&config).unwrap();
+    let longer = text.replace(&format!("iterations = {iterations}\n"), &format!("iterations = {}\n", 2 * iterations));
+    assert_ne!(text, longer, "config.toml names run.iterations");
+    std::fs::write(&config, longer).unwrap();
+    let e = err(ensemble(&["alone", "short"], "ens", true));
+    assert!(e.contains("not finished") && e.contains("short"), "{e}");
+}
+
 /// Copies a folder tree.
 fn copy_dir(from: &std::path::Path, to: &std::path::Path) {
     std::fs::create_dir_all(to).unwrap();
@@ -727,7 +798,9 @@ fn no_ground_truth_steers_the_method() {
         }
         trainer.flush_logs().unwrap();
         let dir = scratch(&format!("tiny-{name}"));
-        let summary = write_outputs(&dir, c, &trainer, &[], None).unwrap();
+        let run = RunModels::alone(trainer, &dir);
+        let summary = write_outputs(&dir, c, &run, &[]).unwrap();
+        let trainer = run.model;
         // The working box comes from the views and the prior, yet holds the whole tree: it is
         // within a few scan steps of the case's box (the complete tree's box + 1 mm).
         let (inputs, case_box) = (trainer.working_box(), c.file.volume.bounds());

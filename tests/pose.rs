@@ -14,7 +14,7 @@ use ctadsa_core::data::projector::correction::{corrected_view, random_correction
 use ctadsa_core::data::synth::{PoseErrorSpec, SynthConfig, synthesize};
 use ctadsa_core::method::pose::ViewPoses;
 use ctadsa_core::method::train::Trainer;
-use ctadsa_core::output::export::write_outputs;
+use ctadsa_core::output::export::{RunModels, write_outputs};
 use ctadsa_render::{ConeBeamView, Gaussians, RenderSettings, TigreGeometry, ViewSet, render};
 use glam::{DQuat, DVec3};
 use rand::SeedableRng;
@@ -136,7 +136,7 @@ fn joint_refinement_on_a_perturbed_synthetic_case() {
         trainer.step().expect("step");
     }
     let out = dir.join("run");
-    let summary = write_outputs(&out, &case, &trainer, &[], None).expect("outputs");
+    let summary = write_outputs(&out, &case, &RunModels::alone(trainer, &out), &[]).expect("outputs");
     assert!(out.join("poses.json").exists(), "poses.json written");
     let errors = summary.pose_errors.expect("the case knows its true poses");
     for e in &errors {

@@ -209,6 +209,12 @@ pub fn print_summary(summary: &RunSummary, out: &Path) {
         let minutes = m.training_time.as_ref().map_or(0.0, |t| t.steps_s / 60.0);
         println!("  prior-only member (its density averaged in): {} Gaussians, training {minutes:.1} min", m.gaussians);
     }
+    if let [first, others @ ..] = summary.ensemble_runs.as_slice() {
+        println!(
+            "  an ensemble: the mean of the densities of {first} (the numbers above are its own) and {}",
+            others.join(", ")
+        );
+    }
     if let Some(errors) = &summary.pose_errors {
         for e in errors {
             println!(

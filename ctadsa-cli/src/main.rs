@@ -7,6 +7,7 @@ mod bench_suite;
 mod clinical;
 mod complete;
 mod diagnose;
+mod ensemble;
 mod eval;
 mod experiment;
 mod progress;
@@ -35,6 +36,9 @@ enum Command {
     Complete(complete::CompleteArgs),
     /// Synthesise the built-in phantom case and complete it with the quick CPU configuration.
     Demo(complete::DemoArgs),
+    /// Average finished runs of one case (other seeds, budgets or configurations) and write the
+    /// outputs of their mean density: mesh, centreline, metrics, report.
+    Ensemble(ensemble::EnsembleArgs),
     /// Chamfer and Hausdorff distances (mm) of a predicted surface to a ground truth, overall and
     /// in the missing-vessel region (ROI) and the prior region.
     Eval(eval::EvalArgs),
@@ -79,6 +83,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Synth(args) => synth::run(args),
         Command::Complete(args) => complete::run(args),
         Command::Demo(args) => complete::demo(args),
+        Command::Ensemble(args) => ensemble::run(args),
         Command::Eval(args) => eval::run(args),
         Command::Diagnose(args) => diagnose::run(args),
         Command::Experiment(args) => experiment::run(args),

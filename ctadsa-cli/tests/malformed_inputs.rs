@@ -228,6 +228,9 @@ fn runs_and_checkpoints_that_are_not_there_are_named_once() {
             vec!["complete", "--case", &case, "--out", "out/r", "--resume", "ckpt-404"],
             "checkpoint `ckpt-404` does not exist",
         ),
+        (vec!["ensemble", "--case", &case, "--runs", "half", "nowhere", "--out", "out/e"], "nowhere: "),
+        (vec!["ensemble", "--case", &case, "--runs", "half", "./half", "--out", "out/e"], "are the same run"),
+        (vec!["ensemble", "--case", &case, "--runs", "half", ".", "--out", "out/e"], "half is not a finished run"),
     ] {
         refused(&dir, &args, &[expect]);
         // The OS's reason, where one is given, is said once (not again as a cause).

@@ -180,6 +180,17 @@ fn header(html: &mut String, title: &str, run_dir: &Path, case_dir: Option<&Path
         text(&summary["n2"]),
         text(&summary["mesh_triangles"])
     );
+    if let Some(runs) = summary["ensemble_runs"].as_array().filter(|r| !r.is_empty()) {
+        let names: Vec<String> = runs.iter().map(|r| format!("<code>{}</code>", text(r))).collect();
+        let _ = write!(
+            html,
+            "<p>An ensemble of {} finished runs (<code>ctadsa ensemble</code>): {}. The density, the surface, the \
+             centreline and the metrics are of the mean of their densities; the Gaussians, renders, loss and \
+             configuration shown are the first run's.</p>",
+            runs.len(),
+            names.join(", ")
+        );
+    }
 }
 
 /// One line describing a view's geometry.
@@ -556,6 +567,7 @@ mod tests {
             "arrival_readings": [{"view": evil, "noise": evil, "median_px": evil}],
             "view_readings": [{"view": evil, "noise_sigma": evil, "bright": evil, "reading": evil}],
             "topology": {"cl_dice": evil, "components": evil, "true_components": [evil], "betti0_error": {"x": evil}},
+            "ensemble_runs": [evil, {"x": evil}],
         });
         std::fs::write(dir.join("summary.json"), summary.to_string()).unwrap();
         let poses = serde_json::json!({"views": [{"name": evil, "rotation_deg": [evil], "translation_mm": evil}]});

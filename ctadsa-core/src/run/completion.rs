@@ -11,7 +11,7 @@ use crate::config::Config;
 use crate::data::case::{CASE_FILE, Case};
 use crate::error::{CoreError, Result, remove_path};
 use crate::method::train::{StepLog, Trainer};
-use crate::output::export::{RunSummary, write_outputs};
+use crate::output::export::{RunModels, RunSummary, write_outputs};
 use crate::output::report::write_report;
 use crate::run::lock::FolderLock;
 
@@ -102,7 +102,7 @@ const RUN_OUTPUTS: [&str; 17] = [
 
 /// The run outputs (files or folders a run writes) that the folder `out` holds, by name: what
 /// `--overwrite` removes, and what a fresh run refuses to write over.
-fn run_outputs_in(out: &Path) -> Vec<String> {
+pub(super) fn run_outputs_in(out: &Path) -> Vec<String> {
     let meshes = ["obj", "ply", "stl"]
         .into_iter()
         .flat_map(|f| ["mesh", "mesh-raw", "mesh-extracted"].map(|stem| format!("{stem}.{f}")));
@@ -240,9 +240,10 @@ pub fn run_completion(
         }
         None => None,
     };
-    let summary = write_outputs(out, case, &trainer, &seed_members, member.as_ref())?;
+    let run = RunModels { model: trainer, seed_members, prior_only: member, folder: out.to_path_buf() };
+    let summary = write_outputs(out, case, &run, &[])?;
     if let Some(s) = summary.field_densities.filter(|_| summary.field_constant && !warned) {
-        monitor.note(&collapse_warning(trainer.iteration(), s.p50));
+        monitor.note(&collapse_warning(run.model.iteration(), s.p50));
     }
     for note in write_report(out)?.left_out {
         monitor.note(&format!("the report leaves out {note}"));

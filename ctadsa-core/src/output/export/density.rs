@@ -1,4 +1,7 @@
-//! The run's density on a grid: its own model's, or the mean over its members'.
+//! The run's density on a grid: its own model's, the mean over its members', or the mean over
+//! the runs of an ensemble.
+
+use std::path::{Path, PathBuf};
 
 use burn::module::Module;
 
@@ -8,10 +11,36 @@ use crate::method::train::Trainer;
 use crate::output::extraction::density_scale;
 use ctadsa_ops::readback::host_vec;
 
-/// The density field on a grid over the working box.
-pub fn density_volume(trainer: &Trainer) -> Result<Volume<f32>> {
+/// The trained models of one run: its own model, its further image-seeded members
+/// (`run.member_seeds`) and its prior-only member (`run.prior_only_member`).
+pub struct RunModels {
+    /// The run's own model.
+    pub model: Trainer,
+    /// The further image-seeded members, in the order of `run.member_seeds`.
+    pub seed_members: Vec<Trainer>,
+    /// The prior-only member.
+    pub prior_only: Option<Trainer>,
+    /// The run's folder.
+    pub folder: PathBuf,
+}
+
+impl RunModels {
+    /// A run of one model alone, trained in `folder`.
+    pub fn alone(model: Trainer, folder: &Path) -> Self {
+        Self { model, seed_members: vec![], prior_only: None, folder: folder.to_path_buf() }
+    }
+}
+
+/// The grid the outputs are written on: `output.voxel_mm` over the working box, or the
+/// model's own voxel.
+pub(super) fn output_grid(trainer: &Trainer) -> Result<Grid> {
     let voxel = if trainer.cfg().output.voxel_mm > 0.0 { trainer.cfg().output.voxel_mm } else { trainer.voxel_mm() };
-    density_on(trainer, Grid::covering(trainer.working_box(), voxel)?)
+    Grid::covering(trainer.working_box(), voxel)
+}
+
+/// The density field on a grid over the working box ([`output_grid`]).
+pub fn density_volume(trainer: &Trainer) -> Result<Volume<f32>> {
+    density_on(trainer, output_grid(trainer)?)
 }
 
 /// The density field of `trainer`'s Gaussians on `grid`.
@@ -21,30 +50,32 @@ pub(super) fn density_on(trainer: &Trainer, grid: Grid) -> Result<Volume<f32>> {
     Ok(Volume { grid, index_to_world: grid.index_to_world(), data: host_vec(vol) })
 }
 
-/// The density of the run: the mean of the image-seeded models' densities (the run's and its
-/// `seed_members'`, `run.member_seeds`) on the run's grid, and with a prior-only `member`
-/// (`run.prior_only_member`) the mean of that and the member's.
-pub fn completion_density(
-    trainer: &Trainer,
-    seed_members: &[Trainer],
-    member: Option<&Trainer>,
-) -> Result<Volume<f32>> {
-    completion_density_on(density_volume(trainer)?, seed_members, member)
+/// The density of a completion on `own`'s output grid: each run's — the mean of its image-seeded
+/// models' densities (its own model's and its `seed_members'`), and with a prior-only member the
+/// mean of that and the member's — and with further runs (`others`, an ensemble) the mean over
+/// the runs.
+pub fn completion_density(own: &RunModels, others: &[RunModels]) -> Result<Volume<f32>> {
+    completion_density_on(output_grid(&own.model)?, own, others)
 }
 
-/// [`completion_density`] with the run's own density (on the grid it is to have) given.
-pub(super) fn completion_density_on(
-    mut volume: Volume<f32>,
-    seed_members: &[Trainer],
-    member: Option<&Trainer>,
-) -> Result<Volume<f32>> {
+/// [`completion_density`] on `grid`.
+pub(super) fn completion_density_on(grid: Grid, own: &RunModels, others: &[RunModels]) -> Result<Volume<f32>> {
+    let mut volume = run_density_on(grid, own)?;
+    let others = others.iter().map(|run| run_density_on(grid, run).map(|v| v.data)).collect::<Result<Vec<_>>>()?;
+    mean_into(&mut volume.data, &others);
+    Ok(volume)
+}
+
+/// The density of one run on `grid` (see [`completion_density`]).
+fn run_density_on(grid: Grid, run: &RunModels) -> Result<Volume<f32>> {
+    let mut volume = density_on(&run.model, grid)?;
     let mut seeded = vec![];
-    for m in seed_members {
-        seeded.push(density_on(m, volume.grid)?.data);
+    for m in &run.seed_members {
+        seeded.push(density_on(m, grid)?.data);
     }
     mean_into(&mut volume.data, &seeded);
-    if let Some(member) = member {
-        mean_into(&mut volume.data, &[density_on(member, volume.grid)?.data]);
+    if let Some(member) = &run.prior_only {
+        mean_into(&mut volume.data, &[density_on(member, grid)?.data]);
     }
     Ok(volume)
 }

@@ -19,11 +19,10 @@ use crate::data::volume::nifti_io::write_nifti;
 use crate::error::{Result, to_json, write_file};
 use crate::eval::score::{CaseTruth, EvalOptions};
 use crate::method::arrival::{prior_hidden_maps, run_arrival_maps, run_arrival_readings, run_case};
-use crate::method::train::Trainer;
 use crate::method::training_time::TrainingTime;
 use crate::output::confidence::mesh_without_doubtful;
 
-pub use density::{completion_density, density_volume, mc_level};
+pub use density::{RunModels, completion_density, density_volume, mc_level};
 use gaussians::write_gaussians;
 use pictures::{write_loss, write_mesh_pictures, write_renders};
 use poses::write_poses;
@@ -31,25 +30,22 @@ pub use summary::{MemberSummary, RunSummary};
 use surface::extract_completed_surface;
 use traced::{traced_solid, write_centreline_of};
 
-/// Writes the outputs of a run into `dir`; with members (`seed_members`, a prior-only `member`)
-/// the density, the surface and what comes from them are of the mean density
-/// ([`completion_density`]), the Gaussians and the renders the run's own.
-pub fn write_outputs(
-    dir: &Path,
-    case: &Case,
-    trainer: &Trainer,
-    seed_members: &[Trainer],
-    member: Option<&Trainer>,
-) -> Result<RunSummary> {
+/// Writes the outputs of the run `own` into `dir`; with members (its `seed_members`, its
+/// `prior_only` member) or further runs (`others`, an ensemble of finished runs of the same case
+/// and views) the density, the surface and what comes from them are of the mean density
+/// ([`completion_density`]); the configuration, the Gaussians, the renders and the loss are
+/// `own`'s model's.
+pub fn write_outputs(dir: &Path, case: &Case, own: &RunModels, others: &[RunModels]) -> Result<RunSummary> {
+    let trainer = &own.model;
     let cfg = trainer.cfg();
     write_file(&dir.join("config.toml"), cfg.to_toml().as_bytes())?;
     let gaussians = write_gaussians(dir, trainer)?;
-    let volume = completion_density(trainer, seed_members, member)?;
+    let volume = completion_density(own, others)?;
     write_nifti(&dir.join("density.nii.gz"), &volume, "ctadsa density (per mm)")?;
     let prior = case.prior_mesh()?;
     let surface = extract_completed_surface(dir, trainer, &volume, prior.as_ref())?;
     let truth = CaseTruth::load(case)?;
-    let traced = traced_solid(trainer, seed_members, member, &volume, &surface, prior.as_ref())?;
+    let traced = traced_solid(own, others, &volume, &surface, prior.as_ref())?;
     let arrival_maps = match cfg.output.arrival_prior_exit_px {
         Some(_) => prior_hidden_maps(case, cfg)?,
         None => run_arrival_maps(case, cfg)?,
@@ -101,8 +97,12 @@ pub fn write_outputs(
         field_densities: spread,
         field_constant: spread.is_some_and(|s| s.is_constant()),
         training_time: TrainingTime::of(trainer.history()),
-        prior_only_member: member.map(MemberSummary::of),
-        seed_members: seed_members.iter().map(MemberSummary::of).collect(),
+        prior_only_member: own.prior_only.as_ref().map(MemberSummary::of),
+        seed_members: own.seed_members.iter().map(MemberSummary::of).collect(),
+        ensemble_runs: match others {
+            [] => vec![],
+            _ => std::iter::once(own).chain(others).map(|run| run.folder.display().to_string()).collect(),
+        },
         metrics: scored.as_ref().map(|r| r.scores),
         coverage: scored.as_ref().map(|r| r.coverage),
         paper_metrics: scored.as_ref().map(|r| r.paper),

@@ -48,6 +48,11 @@ pub struct RunSummary {
     pub prior_only_member: Option<MemberSummary>,
     /// The further image-seeded members averaged in (`run.member_seeds`), in that order.
     pub seed_members: Vec<MemberSummary>,
+    /// An ensemble's runs (`ctadsa ensemble`), their folders in order (the first gives the
+    /// configuration, the Gaussians and the renders, and the numbers above and its members'
+    /// below are its own); empty (and left out of `summary.json`) for a run alone.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub ensemble_runs: Vec<String>,
     /// Scores of the completed surface (exact distances, `docs/METRICS.md`) when the case has
     /// ground truth.
     pub metrics: Option<RegionScores>,

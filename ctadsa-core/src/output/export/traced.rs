@@ -3,7 +3,7 @@
 
 use std::path::Path;
 
-use super::density::{completion_density_on, density_on};
+use super::density::{RunModels, completion_density_on};
 use super::surface::CompletedSurface;
 use crate::config::OutputConfig;
 use crate::data::case::images::Image;
@@ -14,7 +14,6 @@ use crate::data::volume::{Grid, Volume};
 use crate::error::Result;
 use crate::eval::score::CaseTruth;
 use crate::eval::topology::{TopologyScores, topology_scores};
-use crate::method::train::Trainer;
 use crate::output::centreline::{ArrivalCheck, CentrelineSummary, SolidPart, completed_centreline, write_centreline};
 use crate::output::centring::Centring;
 use crate::output::confidence::{MESH_CONFIDENCE, vertex_confidence, write_mesh_confidence};
@@ -43,15 +42,16 @@ pub(super) struct TracedSolid<'a> {
 /// The [`TracedSolid`] of a run: on the density volume's grid, or with
 /// `output.centreline_voxel_mm` finer than its voxel, the completion's density voxelised again
 /// at that size and cut the way the surface was (the same level, the faint vessels' local
-/// level at the same radius in mm, and the near-prior level within the same distance).
+/// level at the same radius in mm, and the near-prior level within the same distance). The
+/// settings and the working box are `own`'s; with `others` (an ensemble) the density is theirs too.
 pub(super) fn traced_solid<'a>(
-    trainer: &Trainer,
-    seed_members: &[Trainer],
-    member: Option<&Trainer>,
+    own: &RunModels,
+    others: &[RunModels],
     volume: &Volume<f32>,
     surface: &CompletedSurface,
     prior: Option<&'a TriMesh>,
 ) -> Result<TracedSolid<'a>> {
+    let trainer = &own.model;
     let out = &trainer.cfg().output;
     let voxel = out.centreline_voxel_mm;
     let bridge_fraction = out.centreline_bridge_fraction_for(trainer.views().views().len());
@@ -76,7 +76,7 @@ pub(super) fn traced_solid<'a>(
         return Ok(TracedSolid { above_level, surface: None, prior, prior_voxels, bridges, relative });
     }
     let grid = Grid::covering(trainer.working_box(), voxel)?;
-    let density = completion_density_on(density_on(trainer, grid)?, seed_members, member)?;
+    let density = completion_density_on(grid, own, others)?;
     let faint = surface.faint_level.map(|low| {
         let radius = (out.faint_radius_mm / voxel).round() as usize;
         faint_level_field(&density, surface.level, low, out.faint_fraction, radius)
