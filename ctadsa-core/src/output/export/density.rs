@@ -38,7 +38,7 @@ pub(super) fn output_grid(trainer: &Trainer) -> Result<Grid> {
     Grid::covering(trainer.working_box(), voxel)
 }
 
-/// The density field on a grid over the working box ([`output_grid`]).
+/// The density field on a grid over the working box (`output.voxel_mm`, or the model's own voxel).
 pub fn density_volume(trainer: &Trainer) -> Result<Volume<f32>> {
     density_on(trainer, output_grid(trainer)?)
 }
