@@ -756,7 +756,8 @@ fn finished_runs_are_averaged_as_an_ensemble() {
     assert!(err(ensemble(&["alone"], "ens", true)).contains("2 to"));
     assert!(err(ensemble(&["alone", "seven"], "seven", true)).contains("one of the runs"));
     assert!(err(ensemble(&["alone", "seven"], "member", true)).contains("checkpoints"));
-    assert!(err(ensemble(&["alone", "two-views"], "ens", true)).contains("same views"));
+    assert!(err(ensemble(&["alone", "two-views"], "ens-views", false)).contains("same views"));
+    assert!(!base.join("ens-views").exists(), "refused before any folder is made");
     std::fs::create_dir_all(base.join("empty")).unwrap();
     assert!(err(ensemble(&["alone", "empty"], "ens", true)).contains("not a finished run"));
     copy_dir(&base.join("alone"), &base.join("short"));

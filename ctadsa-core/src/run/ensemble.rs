@@ -36,6 +36,23 @@ pub fn run_ensemble(
     monitor: &mut dyn Monitor,
 ) -> Result<RunSummary> {
     check_folders(runs, out)?;
+    // The runs' configurations first (cheap): a run that is none, or of other views, is refused
+    // before any folder is made or any model read.
+    let configs = runs.iter().map(|run| run_config(run)).collect::<Result<Vec<_>>>()?;
+    let views = |cfg: &Config| -> Result<Vec<String>> {
+        Ok(run_case(case, cfg)?.file.views.iter().map(|v| v.name.clone()).collect())
+    };
+    let first = views(&configs[0])?;
+    for (cfg, run) in configs.iter().zip(runs).skip(1) {
+        let these = views(cfg)?;
+        if these != first {
+            return Err(CoreError::invalid(format!(
+                "{} sees the views {these:?} and {} the views {first:?}: an ensemble averages runs of the same views",
+                run.display(),
+                runs[0].display()
+            )));
+        }
+    }
     let _lock = FolderLock::take(out, RUN_LOCK, "the ensemble folder")?;
     let earlier = run_outputs_in(out);
     if !earlier.is_empty() {
@@ -51,23 +68,9 @@ pub fn run_ensemble(
         }
     }
     let mut models = Vec::with_capacity(runs.len());
-    for run in runs {
+    for (run, cfg) in runs.iter().zip(&configs) {
         monitor.note(&format!("reading the finished run {}", run.display()));
-        models.push(finished_run(case, run, device.clone(), monitor)?);
-    }
-    let views = |m: &RunModels| -> Result<Vec<String>> {
-        Ok(run_case(case, m.model.cfg())?.file.views.iter().map(|v| v.name.clone()).collect())
-    };
-    let first = views(&models[0])?;
-    for (m, run) in models.iter().zip(runs).skip(1) {
-        let these = views(m)?;
-        if these != first {
-            return Err(CoreError::invalid(format!(
-                "{} sees the views {these:?} and {} the views {first:?}: an ensemble averages runs of the same views",
-                run.display(),
-                runs[0].display()
-            )));
-        }
+        models.push(finished_run(case, run, cfg, device.clone(), monitor)?);
     }
     let summary = write_outputs(out, case, &models[0], &models[1..])?;
     for note in write_report(out)?.left_out {
@@ -122,9 +125,8 @@ fn check_folders(runs: &[PathBuf], out: &Path) -> Result<()> {
     Ok(())
 }
 
-/// The models of the finished run in `folder`: its own, its image-seeded members and its
-/// prior-only member, each at the last step of its schedule.
-fn finished_run(case: &Case, folder: &Path, device: Device, monitor: &mut dyn Monitor) -> Result<RunModels> {
+/// The configuration of the finished run in `folder` (its `config.toml`).
+fn run_config(folder: &Path) -> Result<Config> {
     let config = folder.join("config.toml");
     if !config.is_file() {
         return Err(CoreError::invalid(format!(
@@ -133,8 +135,19 @@ fn finished_run(case: &Case, folder: &Path, device: Device, monitor: &mut dyn Mo
             folder.display()
         )));
     }
-    let cfg = Config::load(Some(&config), &[])?;
-    let model = finished_model(case, &cfg, device.clone(), folder, monitor)?;
+    Config::load(Some(&config), &[])
+}
+
+/// The models of the finished run in `folder`, trained with `cfg`: its own, its image-seeded
+/// members and its prior-only member, each at the last step of its schedule.
+fn finished_run(
+    case: &Case,
+    folder: &Path,
+    cfg: &Config,
+    device: Device,
+    monitor: &mut dyn Monitor,
+) -> Result<RunModels> {
+    let model = finished_model(case, cfg, device.clone(), folder, monitor)?;
     let mut seed_members = vec![];
     for member in cfg.seed_members() {
         let dir = folder.join(seed_member_dir(member.run.seed));
