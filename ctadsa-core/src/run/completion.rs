@@ -70,8 +70,12 @@ const SEED_MEMBER_PREFIX: &str = "seed-member-";
 
 /// Whether `out` holds (part of) a run: a summary or a checkpoint (its own or its member's).
 pub fn holds_run(out: &Path) -> bool {
-    out.join("summary.json").exists()
-        || !Trainer::checkpoints(&out.join("checkpoints")).is_empty()
+    out.join("summary.json").exists() || holds_checkpoints(out)
+}
+
+/// Whether `out` holds a checkpoint of a trained model (its own or its prior-only member's).
+pub fn holds_checkpoints(out: &Path) -> bool {
+    !Trainer::checkpoints(&out.join("checkpoints")).is_empty()
         || !Trainer::checkpoints(&out.join(MEMBER_DIR).join("checkpoints")).is_empty()
 }
 

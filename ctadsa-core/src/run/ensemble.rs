@@ -9,7 +9,9 @@ use std::path::{Path, PathBuf};
 
 use burn::tensor::Device;
 
-use super::completion::{MEMBER_DIR, Monitor, RUN_LOCK, Start, run_outputs_in, seed_member_dir, start_trainer};
+use super::completion::{
+    MEMBER_DIR, Monitor, RUN_LOCK, Start, holds_checkpoints, run_outputs_in, seed_member_dir, start_trainer,
+};
 use crate::config::Config;
 use crate::data::case::{CASE_FILE, Case};
 use crate::error::{CoreError, Result, remove_path};
@@ -113,10 +115,7 @@ fn check_folders(runs: &[PathBuf], out: &Path) -> Result<()> {
             run.display()
         )));
     }
-    let trained = [out.to_path_buf(), out.join(MEMBER_DIR)]
-        .iter()
-        .any(|d| !Trainer::checkpoints(&d.join("checkpoints")).is_empty());
-    if trained {
+    if holds_checkpoints(out) {
         return Err(CoreError::invalid(format!(
             "{} holds a run's checkpoints: write the ensemble to a folder of its own",
             out.display()
