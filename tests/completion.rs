@@ -14,6 +14,7 @@ use ctadsa_core::method::train::{StepLog, Trainer};
 use ctadsa_core::output::export::{RunModels, RunSummary, write_outputs};
 use ctadsa_core::run::completion::{Monitor, Outcome, Silent, Start, run_completion};
 use ctadsa_core::run::ensemble::run_ensemble;
+use ctadsa_core::run::experiment::Experiment;
 
 mod scratch;
 use scratch::scratch;
@@ -25,7 +26,12 @@ const QUICK_TOML: &str = include_str!(concat!(env!("CARGO_MANIFEST_DIR"), "/conf
 /// The built-in quick configuration, shrunk: fewer Gaussians and iterations, no densification
 /// (so that runs on different backends keep the same Gaussians), no prior-only member.
 fn tiny_config(iterations: usize) -> Config {
-    let overrides: Vec<String> = [
+    Config::from_toml_str(QUICK_TOML, "configs/quick.toml", &tiny_overrides(iterations)).unwrap()
+}
+
+/// What makes `configs/quick.toml` [`tiny_config`].
+fn tiny_overrides(iterations: usize) -> Vec<String> {
+    [
         format!("run.iterations={iterations}"),
         "init.n1=1500".into(),
         "init.n2=1200".into(),
@@ -37,8 +43,7 @@ fn tiny_config(iterations: usize) -> Config {
         "output.metric_samples=8000".into(),
         "run.prior_only_member=false".into(),
     ]
-    .into();
-    Config::from_toml_str(QUICK_TOML, "configs/quick.toml", &overrides).unwrap()
+    .into()
 }
 
 /// A small procedural tree (40 mm across), three views of 96 × 96 pixels of 1 mm, prior =
@@ -771,6 +776,48 @@ fn finished_runs_are_averaged_as_an_ensemble() {
 }
 
 /// Copies a folder tree.
+/// An experiment matrix with an ensemble of its two methods: the ensemble cell runs after its
+/// members and holds the mean of their densities, is a row of the tables, and goes stale with a
+/// member's configuration.
+#[test]
+fn an_experiment_runs_its_ensembles_after_their_members() {
+    let base = scratch("experiment-ensemble");
+    std::fs::create_dir_all(&base).unwrap();
+    let matrix = base.join("matrix.toml");
+    let quick = concat!(env!("CARGO_MANIFEST_DIR"), "/configs/quick.toml");
+    std::fs::write(
+        &matrix,
+        format!(
+            "views = [[0, 1, 2]]\n[[methods]]\nname = \"a\"\nconfig = \"{quick}\"\n\
+             [[methods]]\nname = \"b\"\nconfig = \"{quick}\"\nset = [\"run.seed = 7\"]\n\
+             [[ensembles]]\nname = \"ab\"\nmethods = [\"a\", \"b\"]\n"
+        ),
+    )
+    .unwrap();
+    let load = |overrides: &[String]| {
+        Experiment::load(&matrix, std::slice::from_ref(&tiny_case().dir), &base.join("out"), overrides).unwrap()
+    };
+    let exp = load(&tiny_overrides(20));
+    assert_eq!(exp.cells.len(), 3);
+    let device = Device::ndarray().autodiff();
+    let results: Vec<_> =
+        (0..3).map(|i| exp.run_cell(i, device.clone(), &mut Silent).expect("cell").expect("done")).collect();
+    assert_eq!(results[2].method, "ab");
+    assert!(results[2].seconds > results[0].seconds + results[1].seconds, "its members' wall-clock and its own");
+    let [a, b, mean] = [0, 1, 2].map(|i| written_density(&exp.cells[i].dir));
+    let scale = a.iter().fold(0f32, |x, v| x.max(v.abs()));
+    let off = mean.iter().zip(a.iter().zip(&b)).map(|(m, (a, b))| (m - 0.5 * (a + b)).abs()).fold(0f32, f32::max);
+    assert!(off <= 1e-5 * scale, "the mean of the two runs: off by {off} of {scale}");
+    assert!(exp.cells[2].finished().is_some());
+    let table = exp.collect().expect("collect");
+    assert!(table.contains("| ab |"), "the ensemble is a row of the table:\n{table}");
+    // Another configuration of a member: the ensemble is stale too.
+    let mut overrides = tiny_overrides(20);
+    overrides.push("loss.pa_start=10".into());
+    let other = load(&overrides);
+    assert!(other.cells[2].finished().is_none() && other.cells[2].stale());
+}
+
 fn copy_dir(from: &std::path::Path, to: &std::path::Path) {
     std::fs::create_dir_all(to).unwrap();
     for e in std::fs::read_dir(from).unwrap() {

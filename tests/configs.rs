@@ -4,6 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use ctadsa_core::config::Config;
+use ctadsa_core::run::experiment::Experiment;
 
 fn tomls(dir: &Path) -> Vec<PathBuf> {
     let mut out = Vec::new();
@@ -30,6 +31,9 @@ fn shipped_configs_load_and_matrices_point_at_them() {
                 let cfg = p.parent().unwrap().join(method["config"].as_str().unwrap());
                 assert!(cfg.exists(), "{}: {} does not exist", p.display(), cfg.display());
             }
+            // The whole matrix as `ctadsa experiment` reads it: every method's configuration with
+            // each view subset, and its ensembles.
+            Experiment::load(p, &[], Path::new("unused"), &[]).unwrap_or_else(|e| panic!("{}: {e}", p.display()));
         } else {
             Config::load(Some(p), &[]).unwrap_or_else(|e| panic!("{}: {e}", p.display()));
         }

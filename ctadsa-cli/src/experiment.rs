@@ -1,7 +1,8 @@
-//! `ctadsa experiment`: a matrix of (case × prior × views × method) completions
-//! (`ctadsa_core::run::experiment`). Without a mode flag it runs every unfinished cell on this
-//! machine and collects; `--list`, `--cell I` and `--collect` split that into the steps a cluster
-//! runs (one array task per cell, then one collect), see docs/CLUSTER.md.
+//! `ctadsa experiment`: a matrix of (case × prior × views × method) completions and the
+//! ensembles of its methods (`ctadsa_core::run::experiment`). Without a mode flag it runs every
+//! unfinished cell on this machine and collects; `--list`, `--cell I` and `--collect` split that
+//! into the steps a cluster runs (one array task per run cell, then one per ensemble cell, then
+//! one collect), see docs/CLUSTER.md.
 
 use std::path::PathBuf;
 use std::sync::Mutex;
@@ -40,7 +41,8 @@ pub struct ExperimentArgs {
     /// Overrides for every cell, after the matrix's own (repeatable).
     #[arg(long = "set")]
     overrides: Vec<String>,
-    /// Print the cells (index, state, folder) and stop.
+    /// Print the cells (index, state, `run` or `ensemble`, label, folder; tab-separated; the
+    /// ensembles after every run) and stop.
     #[arg(long, conflicts_with_all = ["cell", "collect"])]
     list: bool,
     /// Run only cell I (0-based, as `--list` numbers them; what a SLURM array task runs). A
@@ -77,7 +79,8 @@ pub fn run(args: ExperimentArgs) -> Result<()> {
             } else {
                 "todo"
             };
-            match writeln!(out, "{i}\t{state}\t{}\t{}", cell.label(), cell.dir.display()) {
+            let kind = if cell.is_ensemble() { "ensemble" } else { "run" };
+            match writeln!(out, "{i}\t{state}\t{kind}\t{}\t{}", cell.label(), cell.dir.display()) {
                 // The reader has what it wanted (`--list | head`).
                 Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => return Ok(()),
                 other => other?,
@@ -123,16 +126,17 @@ fn threads_per_job(threads: usize, jobs: usize) -> usize {
     (threads / jobs.max(1)).max(1)
 }
 
-/// Runs the unfinished cells, `jobs` at a time, each on `threads` kernel threads of its own;
-/// failures are listed at the end. One at a time, a cell shows its progress bar and Ctrl-C /
-/// SIGTERM stop the experiment after saving the cell's checkpoint (the cell is redone on the
-/// next run).
+/// Runs the unfinished cells, `jobs` at a time, each on `threads` kernel threads of its own: the
+/// runs, then the ensembles of them; failures are listed at the end (an ensemble of a failed run
+/// among them). One at a time, a cell shows its progress bar and Ctrl-C / SIGTERM stop the
+/// experiment after saving the cell's checkpoint (the cell is redone on the next run).
 fn run_unfinished(exp: &Experiment, backend: BackendKind, jobs: usize, threads: usize) -> Result<()> {
     let todo: Vec<usize> = (0..exp.cells.len()).filter(|&i| exp.cells[i].finished().is_none()).collect();
     eprintln!("{} cells: {} done before, {} to run", exp.cells.len(), exp.cells.len() - todo.len(), todo.len());
     let device = backend.device()?.autodiff();
     let mut failures = Vec::new();
     if jobs <= 1 {
+        // In index order: every ensemble comes after the runs it averages.
         let mut terminal = Terminal::new();
         for i in todo {
             let cell = &exp.cells[i];
@@ -145,11 +149,14 @@ fn run_unfinished(exp: &Experiment, backend: BackendKind, jobs: usize, threads: 
         }
     } else {
         eprintln!("{jobs} cells at a time, {threads} kernel thread(s) each");
-        failures = in_parallel(todo, jobs, threads, |i| {
-            let cell = &exp.cells[i];
-            eprintln!("cell {}/{}: {}", i + 1, exp.cells.len(), cell.label());
-            exp.run_cell(i, device.clone(), &mut Silent).err().map(|e| format!("{}: {e:#}", cell.dir.display()))
-        });
+        let (ensembles, runs): (Vec<usize>, Vec<usize>) = todo.into_iter().partition(|&i| exp.cells[i].is_ensemble());
+        for phase in [runs, ensembles] {
+            failures.extend(in_parallel(phase, jobs, threads, |i| {
+                let cell = &exp.cells[i];
+                eprintln!("cell {}/{}: {}", i + 1, exp.cells.len(), cell.label());
+                exp.run_cell(i, device.clone(), &mut Silent).err().map(|e| format!("{}: {e:#}", cell.dir.display()))
+            }));
+        }
     }
     if !failures.is_empty() {
         bail!("{} cell(s) failed (finished cells are kept; rerun to retry):\n{}", failures.len(), failures.join("\n"));

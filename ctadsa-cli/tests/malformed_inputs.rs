@@ -767,6 +767,25 @@ fn malformed_experiment_names_do_not_escape() {
         std::fs::write(dir.join(file), format!("{matrix}[[methods]]\nname = \"m\"\nconfig = \"{config}\"\n")).unwrap();
         refused(&dir, &["experiment", "--matrix", file, "--cases", &case, "--out", "out/m", "--list"], expect);
     }
+    // An ensemble of a method the matrix lacks; an ensemble cell run before its members.
+    let ensemble = |of: &str| {
+        format!(
+            "views = [[0, 1]]\n[[methods]]\nname = \"m\"\nconfig = \"{config}\"\n[[methods]]\nname = \"n\"\n\
+             config = \"{config}\"\nset = [\"run.seed=7\"]\n[[ensembles]]\nname = \"e\"\nmethods = [{of}]\n"
+        )
+    };
+    std::fs::write(dir.join("ensemble.toml"), ensemble("\"m\", \"x\"")).unwrap();
+    refused(
+        &dir,
+        &["experiment", "--matrix", "ensemble.toml", "--cases", &case, "--out", "out/m", "--list"],
+        &["ensemble.toml", "`x`, which is no method of the matrix"],
+    );
+    std::fs::write(dir.join("ensemble.toml"), ensemble("\"m\", \"n\"")).unwrap();
+    refused(
+        &dir,
+        &["experiment", "--matrix", "ensemble.toml", "--cases", &case, "--out", "out/e", "--cell", "2"],
+        &["cell 2", "ensemble e", "not finished", "0 (", "1 ("],
+    );
     // A matrix of a million cells is refused before any cell's configuration is read.
     let subsets = (0..1000).map(|i| format!("[{i}]")).collect::<Vec<_>>().join(", ");
     let methods =

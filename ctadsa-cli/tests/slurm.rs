@@ -1,5 +1,6 @@
-//! An experiment matrix run as a SLURM job array (`configs/slurm/submit.sh`: one array task per
-//! cell, then a collect job) gives the same table as the same matrix run on this machine.
+//! An experiment matrix run as SLURM job arrays (`configs/slurm/submit.sh`: one array task per
+//! run cell, then one per ensemble cell, then a collect job) gives the same table as the same
+//! matrix run on this machine.
 //! Needs a SLURM cluster that answers `sinfo` (CI starts a single-node one with
 //! `.ci/slurm-up`); without one the test prints why and passes, unless `CTADSA_REQUIRE_SLURM=1`.
 
@@ -18,8 +19,8 @@ fn slurm_available() -> Result<(), String> {
     }
 }
 
-/// The experiment arguments shared by both runs: two cases, two methods, 2 views, a few
-/// iterations.
+/// The experiment arguments shared by both runs: two cases, two methods and their ensemble,
+/// 2 views, a few iterations.
 fn experiment_args(cases: &[&Path], matrix: &Path, out: &Path) -> Vec<String> {
     let mut a: Vec<String> = vec!["--cases".into()];
     a.extend(cases.iter().map(|c| c.to_str().unwrap().to_string()));
@@ -101,7 +102,8 @@ fn a_slurm_job_array_gives_the_same_table_as_a_local_run() {
         &matrix,
         format!(
             "views = [[0, 1]]\n[[methods]]\nname = \"full\"\nconfig = \"{quick}\"\n\n\
-             [[methods]]\nname = \"prior-only\"\nconfig = \"{quick}\"\nset = [\"init.n2 = 0\"]\n"
+             [[methods]]\nname = \"prior-only\"\nconfig = \"{quick}\"\nset = [\"init.n2 = 0\"]\n\n\
+             [[ensembles]]\nname = \"both\"\nmethods = [\"full\", \"prior-only\"]\n"
         ),
     )
     .unwrap();
@@ -112,27 +114,35 @@ fn a_slurm_job_array_gives_the_same_table_as_a_local_run() {
     let run = Command::new(BIN).arg("experiment").args(experiment_args(&cases, &matrix, &local)).output().unwrap();
     assert!(run.status.success(), "local run: {}", String::from_utf8_lossy(&run.stderr));
 
-    // The list names 4 cells; the array runs them, the collect job gathers them.
+    // The list names 6 cells, the ensembles last; the arrays run them, the collect job gathers
+    // them.
     let on_slurm = root.join("slurm");
     let args = experiment_args(&cases, &matrix, &on_slurm);
     let list = Command::new(BIN).arg("experiment").args(&args).arg("--list").output().unwrap();
-    assert_eq!(String::from_utf8_lossy(&list.stdout).lines().count(), 4, "2 cases × 2 methods");
+    let list = String::from_utf8_lossy(&list.stdout).to_string();
+    let kinds: Vec<&str> = list.lines().map(|l| l.split('\t').nth(2).unwrap_or("")).collect();
+    assert_eq!(
+        kinds,
+        ["run", "run", "run", "run", "ensemble", "ensemble"],
+        "2 cases × (2 methods + 1 ensemble):\n{list}"
+    );
     let submit = concat!(env!("CARGO_MANIFEST_DIR"), "/../configs/slurm/submit.sh");
     let sub = Command::new("bash").arg(submit).args(&args).env("CTADSA", BIN).output().unwrap();
     assert!(sub.status.success(), "submit.sh: {}", String::from_utf8_lossy(&sub.stderr));
     let ids = String::from_utf8_lossy(&sub.stdout).to_string();
     let ids: Vec<&str> = ids.split_whitespace().collect();
-    assert_eq!(ids.len(), 2, "submit.sh prints the array and collect job ids: {ids:?}");
+    assert_eq!(ids.len(), 3, "submit.sh prints the two arrays' and the collect job's ids: {ids:?}");
     wait_for_jobs(&ids, Duration::from_secs(600));
 
-    for i in 0..4 {
+    for i in 0..6 {
         let log = on_slurm.join(format!("logs/cell-{i}.log"));
         assert!(log.exists(), "array task {i} wrote its log {}", log.display());
     }
     let collect_log = std::fs::read_to_string(on_slurm.join("logs/collect.log")).unwrap_or_default();
     assert!(on_slurm.join("results.csv").exists(), "the collect job wrote results.csv:\n{collect_log}");
     let (a, b) = (table_without_seconds(&local), table_without_seconds(&on_slurm));
-    assert_eq!(a.len(), 5, "header + 4 cells: {a:#?}");
+    assert_eq!(a.len(), 7, "header + 6 cells: {a:#?}");
+    assert_eq!(a.iter().filter(|row| row.contains(",both,")).count(), 2, "an ensemble row per case: {a:#?}");
     assert_eq!(a, b, "the job array's table equals the local run's");
     let (local_md, slurm_md) = (markdown_without_wall_clock(&local), markdown_without_wall_clock(&on_slurm));
     assert!(local_md.contains('…'), "table.md has a wall-clock column:\n{local_md}");

@@ -1,8 +1,11 @@
 //! An experiment matrix: (case × prior × view subset × method) completion runs, each in its own
-//! cell folder. A cell is finished when its `cell.json` exists; running one cell writes only
-//! inside its folder, so cells can run in any order, in parallel or as the tasks of a SLURM job
-//! array, and [`Experiment::collect`] gathers whatever is finished into `results.csv`, a
-//! Markdown table in the paper's layout (mean ± std over cases) and Fig. 3-style plots.
+//! cell folder, and after them the matrix's ensembles (the mean of some methods' runs of the same
+//! case, prior and views, [`crate::run::ensemble`]), a cell each. A cell is finished when its
+//! `cell.json` exists; running one cell writes only inside its folder, so the run cells can run in
+//! any order, in parallel or as the tasks of a SLURM job array, the ensemble cells once their
+//! members have finished, and [`Experiment::collect`] gathers whatever is finished into
+//! `results.csv`, a Markdown table in the paper's layout (mean ± std over cases) and Fig. 3-style
+//! plots.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -20,6 +23,7 @@ use crate::eval::metrics::SurfaceScores;
 use crate::output::export::RunSummary;
 use crate::output::plot::{PALETTE, Series, line_plot};
 use crate::run::completion::{Monitor, Outcome, Start, run_completion};
+use crate::run::ensemble::{MAX_ENSEMBLE_RUNS, run_ensemble};
 use crate::run::lock::FolderLock;
 pub use crate::run::results::CellResult;
 use crate::run::results::{configurations_table, mean_std, priors_of, results_csv, results_table};
@@ -35,6 +39,18 @@ pub struct Method {
     pub set: Vec<String>,
 }
 
+/// An ensemble of the matrix's methods: for each case, prior and view subset, the mean of those
+/// methods' finished runs (`ctadsa ensemble` on their cells), scored as a method of its own.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EnsembleOf {
+    /// The ensemble's name: its cells' folder and its row in the tables.
+    pub name: String,
+    /// The methods averaged (2 to [`MAX_ENSEMBLE_RUNS`], each once); the first gives the
+    /// configuration, Gaussians and renders written.
+    pub methods: Vec<String>,
+}
+
 /// The matrix file (`configs/experiments/*.toml`).
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -48,6 +64,9 @@ pub struct Matrix {
     #[serde(default)]
     pub set: Vec<String>,
     pub methods: Vec<Method>,
+    /// Ensembles of the methods, each one more cell per case, prior and view subset.
+    #[serde(default)]
+    pub ensembles: Vec<EnsembleOf>,
 }
 
 /// The view counts of a matrix, in its order, each once.
@@ -57,9 +76,29 @@ fn view_counts(matrix: &Matrix) -> Vec<usize> {
     v
 }
 
-/// The names of a matrix's methods, in its order.
+/// The names of a matrix's methods, then of its ensembles, in its order: its tables' rows.
 fn method_names(matrix: &Matrix) -> Vec<String> {
-    matrix.methods.iter().map(|m| m.name.clone()).collect()
+    matrix.methods.iter().map(|m| m.name.clone()).chain(matrix.ensembles.iter().map(|e| e.name.clone())).collect()
+}
+
+/// What a cell does.
+#[derive(Debug, Clone)]
+pub enum CellWork {
+    /// A completion run of one method.
+    Run(Method),
+    /// The mean of the finished runs of other cells: those of the same case, prior and views,
+    /// one per method of the ensemble, by index in [`Experiment::cells`].
+    Ensemble { name: String, members: Vec<usize> },
+}
+
+impl CellWork {
+    /// The method's or the ensemble's name (the cell folder's last part, the table's row).
+    pub fn name(&self) -> &str {
+        match self {
+            Self::Run(method) => &method.name,
+            Self::Ensemble { name, .. } => name,
+        }
+    }
 }
 
 /// One run of the matrix.
@@ -67,13 +106,13 @@ fn method_names(matrix: &Matrix) -> Vec<String> {
 pub struct Cell {
     pub case_dir: PathBuf,
     pub case_name: String,
-    pub method: Method,
+    pub work: CellWork,
     pub views: Vec<usize>,
     pub prior: Option<String>,
-    /// `<out>/cells/<case>/<prior>/views-<list>/<method>`.
+    /// `<out>/cells/<case>/<prior>/views-<list>/<method or ensemble>`.
     pub dir: PathBuf,
     /// A hash of the cell's whole configuration (method config, the matrix's and the caller's
-    /// overrides, its views), as TOML.
+    /// overrides, its views, as TOML; an ensemble's: its members' hashes, in order).
     pub config_hash: String,
     /// The case's [`CaseFile::fingerprint`] when the matrix was read (`None`: the case could
     /// not be read then; its cell says why when it runs).
@@ -91,8 +130,16 @@ impl Cell {
             self.case_name,
             self.prior.as_deref().unwrap_or("case prior"),
             self.views,
-            self.method.name
+            match &self.work {
+                CellWork::Run(method) => method.name.clone(),
+                CellWork::Ensemble { name, .. } => format!("ensemble {name}"),
+            }
         )
+    }
+
+    /// Whether the cell averages other cells' runs.
+    pub fn is_ensemble(&self) -> bool {
+        matches!(self.work, CellWork::Ensemble { .. })
     }
 
     /// The cell's result when it has finished with its present configuration on its present
@@ -125,8 +172,9 @@ const CELL_LOCK: &str = "cell.lock";
 /// study's, and each cell's configuration is checked when the matrix is read.
 pub const MAX_CELLS: usize = 100_000;
 
-/// A matrix over cases, with its cells in a fixed order (case, prior, views, method), so that a
-/// cell's index names the same run on every machine.
+/// A matrix over cases, with its cells in a fixed order — the runs by (case, prior, views,
+/// method), then the ensembles by (case, prior, views, ensemble) — so that a cell's index names
+/// the same run on every machine, and adding an ensemble renumbers no run.
 #[derive(Debug, Clone)]
 pub struct Experiment {
     pub matrix: Matrix,
@@ -234,6 +282,37 @@ pub fn case_files_digest(dir: &Path, file: &CaseFile, prior: Option<&str>) -> St
     format!("{state:016x}")
 }
 
+/// `<out>/cells/<case>/<prior or "case">/views-<list>/<method or ensemble>`.
+fn cell_dir(out: &Path, case_name: &str, prior: Option<&str>, views: &[usize], name: &str) -> PathBuf {
+    let tag = views.iter().map(|v| v.to_string()).collect::<Vec<_>>().join("-");
+    out.join("cells").join(case_name).join(prior.unwrap_or("case")).join(format!("views-{tag}")).join(name)
+}
+
+/// Refuses an ensemble of fewer than two methods or more than [`MAX_ENSEMBLE_RUNS`], of a method
+/// the matrix does not have, or of one method twice.
+fn check_ensemble(ensemble: &EnsembleOf, methods: &[Method]) -> std::result::Result<(), String> {
+    let name = &ensemble.name;
+    let n = ensemble.methods.len();
+    if !(2..=MAX_ENSEMBLE_RUNS).contains(&n) {
+        return Err(format!(
+            "the ensemble `{name}` averages {n} method(s); an ensemble averages 2 to {MAX_ENSEMBLE_RUNS}"
+        ));
+    }
+    for (i, m) in ensemble.methods.iter().enumerate() {
+        if !methods.iter().any(|method| &method.name == m) {
+            let known: Vec<String> = methods.iter().map(|m| format!("`{}`", m.name)).collect();
+            return Err(format!(
+                "the ensemble `{name}` names `{m}`, which is no method of the matrix ({})",
+                known.join(", ")
+            ));
+        }
+        if ensemble.methods[..i].contains(m) {
+            return Err(format!("the ensemble `{name}` names `{m}` twice"));
+        }
+    }
+    Ok(())
+}
+
 fn case_file(dir: &Path) -> Option<CaseFile> {
     let path = dir.join(CASE_FILE);
     let text = String::from_utf8(read_file(&path).ok()?).ok()?;
@@ -253,12 +332,12 @@ impl Experiment {
             return Err(bad("the matrix needs at least one view subset and one method".into()));
         }
         let cells = matrix.views.len() as u128
-            * matrix.methods.len() as u128
+            * (matrix.methods.len() + matrix.ensembles.len()) as u128
             * matrix.priors.len().max(1) as u128
             * cases.len().max(1) as u128;
         if cells > MAX_CELLS as u128 {
             return Err(bad(format!(
-                "{cells} cells (cases × priors × view subsets × methods); a matrix has at most {MAX_CELLS}"
+                "{cells} cells (cases × priors × view subsets × (methods + ensembles)); a matrix has at most {MAX_CELLS}"
             )));
         }
         if matrix.views.iter().any(|v| v.is_empty()) {
@@ -273,6 +352,9 @@ impl Experiment {
         for m in &matrix.methods {
             check_file_name(&m.name, "method name").map_err(bad)?;
         }
+        for e in &matrix.ensembles {
+            check_file_name(&e.name, "ensemble name").map_err(bad)?;
+        }
         for p in &matrix.priors {
             check_file_name(p, "prior folder").map_err(bad)?;
         }
@@ -281,8 +363,11 @@ impl Experiment {
             let mut seen = BTreeSet::new();
             items.into_iter().find(|i| !seen.insert(i.clone()))
         }
-        if let Some(m) = first_repeat(matrix.methods.iter().map(|m| m.name.clone())) {
-            return Err(bad(format!("two methods are named `{m}`")));
+        if let Some(m) = first_repeat(method_names(&matrix)) {
+            return Err(bad(format!("two methods or ensembles are named `{m}`")));
+        }
+        for e in &matrix.ensembles {
+            check_ensemble(e, &matrix.methods).map_err(bad)?;
         }
         if let Some(v) = first_repeat(matrix.views.iter().cloned()) {
             return Err(bad(format!("the view subset {v:?} is listed twice")));
@@ -346,21 +431,14 @@ impl Experiment {
                 let case_files = file.as_ref().map(|f| case_files_digest(case_dir, f, prior.as_deref()));
                 for views in &matrix.views {
                     for method in &matrix.methods {
-                        let tag = views.iter().map(|v| v.to_string()).collect::<Vec<_>>().join("-");
-                        let dir = out
-                            .join("cells")
-                            .join(&case_name)
-                            .join(prior.as_deref().unwrap_or("case"))
-                            .join(format!("views-{tag}"))
-                            .join(&method.name);
                         let config_hash = config_hashes[&(method.name.clone(), views.clone())].clone();
                         cells.push(Cell {
                             case_dir: case_dir.clone(),
                             case_name: case_name.clone(),
-                            method: method.clone(),
+                            dir: cell_dir(out, &case_name, prior.as_deref(), views, &method.name),
+                            work: CellWork::Run(method.clone()),
                             views: views.clone(),
                             prior: prior.clone(),
-                            dir,
                             config_hash,
                             case_fingerprint: case_fingerprint.clone(),
                             case_files: case_files.clone(),
@@ -369,17 +447,55 @@ impl Experiment {
                 }
             }
         }
+        // The ensembles after every run, each over the run cells of its case, prior and views.
+        let runs = cells.len();
+        for run_of_first_method in (0..runs).step_by(matrix.methods.len()) {
+            let first = cells[run_of_first_method].clone();
+            for ensemble in &matrix.ensembles {
+                let members: Vec<usize> = ensemble
+                    .methods
+                    .iter()
+                    .map(|m| {
+                        let offset = matrix.methods.iter().position(|method| &method.name == m);
+                        run_of_first_method + offset.expect("checked: an ensemble names methods of the matrix")
+                    })
+                    .collect();
+                let hashes: Vec<&str> = members.iter().map(|&m| cells[m].config_hash.as_str()).collect();
+                cells.push(Cell {
+                    dir: cell_dir(out, &first.case_name, first.prior.as_deref(), &first.views, &ensemble.name),
+                    work: CellWork::Ensemble { name: ensemble.name.clone(), members },
+                    config_hash: text_hash(&format!("ensemble of {}", hashes.join(" "))),
+                    ..first.clone()
+                });
+            }
+        }
         Ok(Self { matrix, matrix_dir, common, cells, out: out.to_path_buf() })
     }
 
-    /// Runs cell `index` on `device` (autodiff) and writes its `cell.json`: continued from the
-    /// newest checkpoint an interrupted attempt with the same settings left (a SIGTERM'd SLURM
-    /// task, requeued), else from scratch. The cell is locked while it runs: a second process
-    /// on it is refused. `None` when the monitor stopped it.
+    /// Runs cell `index` on `device` (autodiff) and writes its `cell.json`. A run cell continues
+    /// from the newest checkpoint an interrupted attempt with the same settings left (a
+    /// SIGTERM'd SLURM task, requeued), else starts from scratch; an ensemble cell averages its
+    /// members' runs, and is refused, naming them, while one of them is not finished. The cell
+    /// is locked while it runs: a second process on it is refused. `None` when the monitor
+    /// stopped it.
     pub fn run_cell(&self, index: usize, device: Device, monitor: &mut dyn Monitor) -> Result<Option<CellResult>> {
         let cell = self.cells.get(index).ok_or_else(|| {
             CoreError::invalid(format!("cell {index} does not exist (the matrix has {} cells)", self.cells.len()))
         })?;
+        if let CellWork::Ensemble { members, .. } = &cell.work {
+            let waiting: Vec<String> = members
+                .iter()
+                .filter(|&&m| self.cells[m].finished().is_none())
+                .map(|&m| format!("{m} ({})", self.cells[m].label()))
+                .collect();
+            if !waiting.is_empty() {
+                return Err(CoreError::invalid(format!(
+                    "cell {index} ({}) averages cells that are not finished: {}; run them first",
+                    cell.label(),
+                    waiting.join(", ")
+                )));
+            }
+        }
         let case = Case::load(&cell.case_dir)?;
         let case_fingerprint = case.fingerprint();
         let case_files = case_files_digest(&cell.case_dir, &case.file, cell.prior.as_deref());
@@ -388,39 +504,35 @@ impl Experiment {
             None => case,
         };
         let view_list = cell.views.iter().map(|v| v.to_string()).collect::<Vec<_>>().join(",");
-        let mut overrides = self.common.clone();
-        overrides.extend(cell.method.set.iter().cloned());
-        overrides.push(format!("run.views=[{view_list}]"));
-        let cfg = Config::load(Some(&self.matrix_dir.join(&cell.method.config)), &overrides)?;
         let _lock = FolderLock::take(&cell.dir, CELL_LOCK, "the cell")?;
         let start = Instant::now();
-        let attempted = !cell.dir.join("cell.json").exists()
-            && !crate::method::train::Trainer::checkpoints(&cell.dir.join("checkpoints")).is_empty();
-        let outcome = if attempted {
-            monitor.note(&format!("{}: continuing the interrupted attempt", cell.label()));
-            match run_completion(&case, cfg.clone(), device.clone(), &cell.dir, Start::Resume("latest"), monitor) {
-                Ok(outcome) => outcome,
-                Err(e) => {
-                    monitor.note(&format!("{}: cannot continue ({e}); starting again", cell.label()));
-                    run_completion(&case, cfg, device, &cell.dir, Start::Overwrite, monitor)?
+        let (summary, members_seconds) = match &cell.work {
+            CellWork::Run(method) => {
+                let mut overrides = self.common.clone();
+                overrides.extend(method.set.iter().cloned());
+                overrides.push(format!("run.views=[{view_list}]"));
+                let cfg = Config::load(Some(&self.matrix_dir.join(&method.config)), &overrides)?;
+                match self.run_method(cell, &case, cfg, device, monitor)? {
+                    Some(summary) => (summary, 0.0),
+                    None => return Ok(None),
                 }
             }
-        } else {
-            remove_file_if_present(&cell.dir.join("cell.json"))?;
-            run_completion(&case, cfg, device, &cell.dir, Start::Overwrite, monitor)?
-        };
-        let summary = match outcome {
-            Outcome::Finished(summary) => summary,
-            Outcome::Interrupted { .. } => return Ok(None),
+            CellWork::Ensemble { members, .. } => {
+                remove_file_if_present(&cell.dir.join("cell.json"))?;
+                let runs: Vec<PathBuf> = members.iter().map(|&m| self.cells[m].dir.clone()).collect();
+                let summary = run_ensemble(&case, &runs, device, &cell.dir, true, monitor)?;
+                let seconds = members.iter().filter_map(|&m| self.cells[m].finished()).map(|r| r.seconds).sum();
+                (summary, seconds)
+            }
         };
         let result = CellResult {
             case: cell.case_name.clone(),
-            method: cell.method.name.clone(),
+            method: cell.work.name().to_string(),
             views: cell.views.len(),
             view_list,
             prior: cell.prior.clone().unwrap_or_else(|| "case".into()),
             prior_threshold_mm: case.file.prior.as_ref().and_then(|p| p.threshold_mm),
-            seconds: start.elapsed().as_secs_f64(),
+            seconds: members_seconds + start.elapsed().as_secs_f64(),
             gaussians: summary.gaussians,
             metrics: cell_metrics(&summary),
             config_hash: Some(cell.config_hash.clone()),
@@ -430,6 +542,37 @@ impl Experiment {
         let path = cell.dir.join("cell.json");
         write_file(&path, to_json(&result, &path)?.as_bytes())?;
         Ok(Some(result))
+    }
+
+    /// The completion run of a run cell (locked by the caller), continued or from scratch as
+    /// [`Experiment::run_cell`] says; `None` when the monitor stopped it.
+    fn run_method(
+        &self,
+        cell: &Cell,
+        case: &Case,
+        cfg: Config,
+        device: Device,
+        monitor: &mut dyn Monitor,
+    ) -> Result<Option<RunSummary>> {
+        let attempted = !cell.dir.join("cell.json").exists()
+            && !crate::method::train::Trainer::checkpoints(&cell.dir.join("checkpoints")).is_empty();
+        let outcome = if attempted {
+            monitor.note(&format!("{}: continuing the interrupted attempt", cell.label()));
+            match run_completion(case, cfg.clone(), device.clone(), &cell.dir, Start::Resume("latest"), monitor) {
+                Ok(outcome) => outcome,
+                Err(e) => {
+                    monitor.note(&format!("{}: cannot continue ({e}); starting again", cell.label()));
+                    run_completion(case, cfg, device, &cell.dir, Start::Overwrite, monitor)?
+                }
+            }
+        } else {
+            remove_file_if_present(&cell.dir.join("cell.json"))?;
+            run_completion(case, cfg, device, &cell.dir, Start::Overwrite, monitor)?
+        };
+        Ok(match outcome {
+            Outcome::Finished(summary) => Some(*summary),
+            Outcome::Interrupted { .. } => None,
+        })
     }
 
     /// The results of the finished cells, in cell order.
@@ -463,13 +606,13 @@ impl Experiment {
             [("roi_cd_sum_mm", "CD ROI (mm)", "fig3-cd-roi.png"), ("roi_hd95_mm", "HD95 ROI (mm)", "fig3-hd95-roi.png")]
         {
             let mut series = Vec::new();
-            for m in &self.matrix.methods {
+            for name in method_names(&self.matrix) {
                 for v in view_counts(&self.matrix) {
                     let mut pts: Vec<(f64, f64)> = Vec::new();
                     for p in &priors {
                         let s: Vec<f64> = results
                             .iter()
-                            .filter(|r| r.method == m.name && &r.prior == p && r.views == v)
+                            .filter(|r| r.method == name && &r.prior == p && r.views == v)
                             .filter_map(|r| r.metrics.get(key).copied().flatten())
                             .collect();
                         if let (Some(t), Some((mean, _))) = (threshold_of(p), mean_std(&s)) {
@@ -478,7 +621,7 @@ impl Experiment {
                     }
                     pts.sort_by(|a, b| a.0.total_cmp(&b.0));
                     let rgb = PALETTE[series.len() % PALETTE.len()];
-                    series.push(Series { name: format!("{} {}v", m.name, v), points: pts, rgb });
+                    series.push(Series { name: format!("{name} {v}v"), points: pts, rgb });
                 }
             }
             let title = format!("{label}: mean over the cases, per method and view count");
@@ -516,7 +659,7 @@ mod tests {
         let method = |name: &str| format!("[[methods]]\nname = \"{name}\"\nconfig = \"{config}\"\n");
         let twice = write("twice.toml", format!("views = [[0, 1]]\n{}{}", method("m"), method("m")));
         let err = Experiment::load(&twice, &[], &dir.join("out"), &[]).unwrap_err().to_string();
-        assert!(err.contains("two methods are named `m`"), "{err}");
+        assert!(err.contains("two methods or ensembles are named `m`"), "{err}");
         let views = write("views.toml", format!("views = [[0, 1], [0, 1]]\n{}", method("m")));
         let err = Experiment::load(&views, &[], &dir.join("out"), &[]).unwrap_err().to_string();
         assert!(err.contains("listed twice"), "{err}");
@@ -638,6 +781,76 @@ mod tests {
         assert_eq!(load("cases/A").unwrap().cells.len(), 1);
         assert_eq!(load("later").unwrap().cells.len(), 1);
         assert_eq!(load("cases/notes").unwrap().cells.len(), 1);
+    }
+
+    /// Ensembles: checked when the matrix is read, laid out after every run with their members
+    /// found by case, prior and views, of a configuration that follows their members', and
+    /// refused to run, naming them, while a member is unfinished.
+    #[test]
+    #[allow(deprecated)] // burn-ndarray is the CPU backend the tests use.
+    fn ensembles_follow_the_runs_they_average() {
+        let temp = tempfile::tempdir().unwrap();
+        let dir = temp.path().to_path_buf();
+        let config = concat!(env!("CARGO_MANIFEST_DIR"), "/../configs/quick.toml");
+        let methods = format!(
+            "views = [[0, 1], [0, 1, 2]]\n[[methods]]\nname = \"a\"\nconfig = \"{config}\"\n\
+             [[methods]]\nname = \"b\"\nconfig = \"{config}\"\nset = [\"run.seed = 7\"]\n\
+             [[methods]]\nname = \"c\"\nconfig = \"{config}\"\nset = [\"run.seed = 8\"]\n"
+        );
+        let load = |ensembles: &str, overrides: &[String]| {
+            let path = dir.join("m.toml");
+            std::fs::write(&path, format!("{methods}{ensembles}")).unwrap();
+            Experiment::load(&path, &[dir.join("X"), dir.join("Y")], &dir.join("out"), overrides)
+        };
+        let ensemble = |name: &str, of: &str| format!("[[ensembles]]\nname = \"{name}\"\nmethods = [{of}]\n");
+        for (ensembles, expected) in [
+            (ensemble("e", "\"a\""), "averages 1 method(s)"),
+            (ensemble("e", "\"a\", \"z\""), "names `z`, which is no method of the matrix (`a`, `b`, `c`)"),
+            (ensemble("e", "\"a\", \"b\", \"a\""), "names `a` twice"),
+            (ensemble("a", "\"b\", \"c\""), "two methods or ensembles are named `a`"),
+            (format!("{}{}", ensemble("e", "\"a\", \"b\""), ensemble("e", "\"b\", \"c\"")), "named `e`"),
+            (ensemble("../e", "\"a\", \"b\""), "ensemble name"),
+        ] {
+            let err = load(&ensembles, &[]).expect_err(&ensembles).to_string();
+            assert!(err.contains("m.toml") && err.contains(expected), "{ensembles}: {err}");
+        }
+        let two = format!("{}{}", ensemble("ca", "\"c\", \"a\""), ensemble("ab", "\"a\", \"b\""));
+        let exp = load(&two, &[]).unwrap();
+        // 2 cases × 2 view subsets × 3 methods, then × 2 ensembles.
+        assert_eq!(exp.cells.len(), 12 + 8);
+        assert!(exp.cells[..12].iter().all(|c| !c.is_ensemble()) && exp.cells[12..].iter().all(Cell::is_ensemble));
+        let without = load("", &[]).unwrap();
+        for (with, alone) in exp.cells.iter().zip(&without.cells) {
+            assert_eq!((&with.dir, &with.config_hash), (&alone.dir, &alone.config_hash), "no run renumbered");
+        }
+        for cell in &exp.cells[12..] {
+            let CellWork::Ensemble { name, members } = &cell.work else { unreachable!() };
+            let names: Vec<&str> = members.iter().map(|&m| exp.cells[m].work.name()).collect();
+            assert_eq!(names, if name == "ca" { ["c", "a"] } else { ["a", "b"] });
+            for &m in members {
+                let member = &exp.cells[m];
+                assert_eq!(
+                    (&member.case_name, &member.views, &member.prior),
+                    (&cell.case_name, &cell.views, &cell.prior)
+                );
+                assert_eq!(member.dir.parent(), cell.dir.parent(), "beside its members");
+            }
+            assert!(cell.dir.ends_with(name) && cell.label().contains(&format!("ensemble {name}")));
+        }
+        // The ensemble's identity follows its members' configurations.
+        let seeded = load(&two, &["run.iterations=5".into()]).unwrap();
+        assert_ne!(exp.cells[12].config_hash, seeded.cells[12].config_hash);
+        assert_ne!(exp.cells[12].config_hash, exp.cells[13].config_hash, "other members");
+        // Run before its members: refused, naming the unfinished ones, nothing written.
+        let err = exp.run_cell(12, Device::ndarray().autodiff(), &mut crate::run::completion::Silent).unwrap_err();
+        let err = err.to_string();
+        assert!(
+            err.contains("cell 12")
+                && err.contains("not finished")
+                && err.contains("2 (X / case prior / views [0, 1] / c)"),
+            "{err}"
+        );
+        assert!(!exp.cells[12].dir.exists());
     }
 
     #[test]
