@@ -800,8 +800,12 @@ fn an_experiment_runs_its_ensembles_after_their_members() {
     let exp = load(&tiny_overrides(20));
     assert_eq!(exp.cells.len(), 3);
     let device = Device::ndarray().autodiff();
-    let results: Vec<_> =
-        (0..3).map(|i| exp.run_cell(i, device.clone(), &mut Silent).expect("cell").expect("done")).collect();
+    assert_eq!(exp.waits_for(2), [0, 1]);
+    let mut results = Vec::new();
+    for i in 0..3 {
+        results.push(exp.run_cell(i, device.clone(), &mut Silent).expect("cell").expect("done"));
+        assert_eq!(exp.waits_for(2), (i + 1..2).collect::<Vec<_>>(), "after cell {i}");
+    }
     assert_eq!(results[2].method, "ab");
     assert!(results[2].seconds > results[0].seconds + results[1].seconds, "its members' wall-clock and its own");
     let [a, b, mean] = [0, 1, 2].map(|i| written_density(&exp.cells[i].dir));

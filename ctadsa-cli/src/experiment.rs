@@ -72,12 +72,16 @@ pub fn run(args: ExperimentArgs) -> Result<()> {
         use std::io::Write as _;
         let mut out = std::io::stdout().lock();
         for (i, cell) in exp.cells.iter().enumerate() {
+            let waits_for = exp.waits_for(i);
             let state = if cell.finished().is_some() {
-                "done"
+                "done".to_string()
             } else if cell.stale() {
-                "stale (its cell.json is of another configuration or case, or unreadable: runs again)"
+                "stale (its cell.json is of another configuration or case, or unreadable: runs again)".to_string()
+            } else if !waits_for.is_empty() {
+                let cells: Vec<String> = waits_for.iter().map(usize::to_string).collect();
+                format!("todo (after cells {})", cells.join(", "))
             } else {
-                "todo"
+                "todo".to_string()
             };
             let kind = if cell.is_ensemble() { "ensemble" } else { "run" };
             match writeln!(out, "{i}\t{state}\t{kind}\t{}\t{}", cell.label(), cell.dir.display()) {

@@ -126,6 +126,7 @@ fn a_slurm_job_array_gives_the_same_table_as_a_local_run() {
         ["run", "run", "run", "run", "ensemble", "ensemble"],
         "2 cases × (2 methods + 1 ensemble):\n{list}"
     );
+    assert!(list.contains("\ttodo (after cells 2, 3)\tensemble\t"), "what an ensemble waits for:\n{list}");
     let submit = concat!(env!("CARGO_MANIFEST_DIR"), "/../configs/slurm/submit.sh");
     let sub = Command::new("bash").arg(submit).args(&args).env("CTADSA", BIN).output().unwrap();
     assert!(sub.status.success(), "submit.sh: {}", String::from_utf8_lossy(&sub.stderr));

@@ -482,19 +482,14 @@ impl Experiment {
         let cell = self.cells.get(index).ok_or_else(|| {
             CoreError::invalid(format!("cell {index} does not exist (the matrix has {} cells)", self.cells.len()))
         })?;
-        if let CellWork::Ensemble { members, .. } = &cell.work {
-            let waiting: Vec<String> = members
-                .iter()
-                .filter(|&&m| self.cells[m].finished().is_none())
-                .map(|&m| format!("{m} ({})", self.cells[m].label()))
-                .collect();
-            if !waiting.is_empty() {
-                return Err(CoreError::invalid(format!(
-                    "cell {index} ({}) averages cells that are not finished: {}; run them first",
-                    cell.label(),
-                    waiting.join(", ")
-                )));
-            }
+        let waiting: Vec<String> =
+            self.waits_for(index).into_iter().map(|m| format!("{m} ({})", self.cells[m].label())).collect();
+        if !waiting.is_empty() {
+            return Err(CoreError::invalid(format!(
+                "cell {index} ({}) averages cells that are not finished: {}; run them first",
+                cell.label(),
+                waiting.join(", ")
+            )));
         }
         let case = Case::load(&cell.case_dir)?;
         let case_fingerprint = case.fingerprint();
@@ -573,6 +568,17 @@ impl Experiment {
             Outcome::Finished(summary) => Some(*summary),
             Outcome::Interrupted { .. } => None,
         })
+    }
+
+    /// The cells that cell `index` averages and that are not finished (none for a run cell or a
+    /// cell that does not exist).
+    pub fn waits_for(&self, index: usize) -> Vec<usize> {
+        match self.cells.get(index).map(|c| &c.work) {
+            Some(CellWork::Ensemble { members, .. }) => {
+                members.iter().copied().filter(|&m| self.cells[m].finished().is_none()).collect()
+            }
+            _ => Vec::new(),
+        }
     }
 
     /// The results of the finished cells, in cell order.
@@ -842,6 +848,8 @@ mod tests {
         assert_ne!(exp.cells[12].config_hash, seeded.cells[12].config_hash);
         assert_ne!(exp.cells[12].config_hash, exp.cells[13].config_hash, "other members");
         // Run before its members: refused, naming the unfinished ones, nothing written.
+        assert_eq!(exp.waits_for(12), [2, 0], "the ensemble `ca` of case X, views [0, 1]");
+        assert!(exp.waits_for(0).is_empty() && exp.waits_for(99).is_empty());
         let err = exp.run_cell(12, Device::ndarray().autodiff(), &mut crate::run::completion::Silent).unwrap_err();
         let err = err.to_string();
         assert!(
